@@ -1,0 +1,1 @@
+"""Building blocks of the policies: encoders, the multimodal state-space core, fusion, action heads."""

@@ -1,0 +1,171 @@
+"""What every policy shares: the network base (encoders + normaliser), the Lightning training
+wrapper, and the stateful runner used by rollouts and deployment.
+
+Batches are ``{"obs": {key: (B,T,...)}, "actions": (B,T,A)}`` with raw values (images uint8,
+lowdim and actions unnormalised): the network normalises, so training and rollouts share one path.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Iterable
+
+import lightning as L
+import numpy as np
+import torch
+from torch import nn
+
+from nostra.modality import Modality, as_modalities
+from nostra.models.encoders import ModalityEncoder
+from nostra.models.normalizer import Normalizer
+
+CHECKPOINT_FORMAT = 1
+
+
+class PolicyNet(nn.Module):
+    """Per-modality encoders (each with its own MLP) and the normaliser."""
+
+    policy: str = ""
+
+    def __init__(self, modalities, action_dim: int, embed_dim: int = 128, encoder_hidden=(256,),
+                 image_encoder: str = "light", image_norm: str = "group"):
+        super().__init__()
+        self.modalities: list[Modality] = as_modalities(modalities)
+        self.action_dim = int(action_dim)
+        self.embed_dim = embed_dim
+        self.encoders = nn.ModuleDict({
+            m.name: ModalityEncoder(m, image_encoder, embed_dim, list(encoder_hidden), image_norm)
+            for m in self.modalities
+        })
+        lowdim = {m.name: m.shape[0] for m in self.modalities if m.kind == "lowdim"}
+        self.normalizer = Normalizer({**lowdim, "actions": self.action_dim})
+
+    @property
+    def modality_names(self) -> list[str]:
+        return [m.name for m in self.modalities]
+
+    def encode(self, obs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        missing = [k for k in self.modality_names if k not in obs]
+        if missing:
+            raise KeyError(f"observation is missing {missing}; this policy needs {self.modality_names}")
+        out = {}
+        for m in self.modalities:
+            x = obs[m.name]
+            if m.kind == "lowdim":
+                x = self.normalizer.normalize(m.name, x)
+            out[m.name] = self.encoders[m.name](x)
+        return out
+
+    def action_target(self, actions: torch.Tensor) -> torch.Tensor:
+        return self.normalizer.normalize("actions", actions)
+
+    def loss(self, batch: dict, **cfg) -> dict[str, Any]:
+        raise NotImplementedError
+
+
+class PolicyModule(L.LightningModule):
+    """Lightning wrapper: teacher-forced sequence training, Adam with a constant learning rate
+    (paper Table 7), logging with the design's metric names."""
+
+    net_cls: type[PolicyNet] = PolicyNet
+    default_loss: dict = {}
+
+    def __init__(self, modalities: list[dict], action_dim: int, net: dict | None = None,
+                 optim: dict | None = None, loss: dict | None = None):
+        super().__init__()
+        modalities = [m.to_dict() if isinstance(m, Modality) else dict(m) for m in modalities]
+        self.save_hyperparameters({"modalities": modalities, "action_dim": int(action_dim),
+                                   "net": dict(net or {}), "optim": dict(optim or {}), "loss": dict(loss or {})})
+        self.net = self.net_cls(modalities, action_dim, **(net or {}))
+        self.optim_cfg = {"lr": 1e-4, **(optim or {})}
+        self.loss_cfg = {**self.default_loss, **(loss or {})}
+
+    @property
+    def policy(self) -> str:
+        return self.net_cls.policy
+
+    def set_normalization(self, stats: dict) -> None:
+        self.net.normalizer.set_stats(stats)
+
+    def training_step(self, batch, batch_idx):
+        out = self.net.loss(batch, **self.loss_cfg)
+        self._log("train", out, batch)
+        return out["loss"]
+
+    def validation_step(self, batch, batch_idx):
+        out = self.net.loss(batch, **self.loss_cfg)
+        self._log("val", out, batch)
+        return out["loss"]
+
+    def _log(self, prefix: str, out: dict, batch: dict) -> None:
+        bs = batch["actions"].shape[0]
+        for k in ("loss", "nll", "kl"):
+            if k in out:
+                self.log(f"{prefix}/{k}", out[k], prog_bar=(k == "loss"), batch_size=bs)
+        for g, v in out.get("kl_nats", {}).items():
+            name = f"kl_nats/{g}" if prefix == "train" else f"{prefix}/kl_nats/{g}"
+            self.log(name, v, batch_size=bs)
+
+    def configure_optimizers(self):
+        return torch.optim.Adam(self.parameters(), lr=self.optim_cfg["lr"])
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint["nostra"] = {
+            "format": CHECKPOINT_FORMAT,
+            "policy": self.policy,
+            "modalities": self.hparams["modalities"],
+            "action_dim": self.hparams["action_dim"],
+            "net": self.hparams["net"],
+        }
+
+
+class Runner:
+    """Stateful step-by-step execution of a trained policy: ``reset()`` then ``step(obs)``.
+
+    ``obs`` maps each modality name to one step's array (no batch dim). ``imagine`` (where the
+    policy supports it) names modalities whose prior latent replaces the posterior this step.
+    """
+
+    policy: str = ""
+
+    def __init__(self, net: PolicyNet, device: str = "cpu"):
+        if net.policy != self.policy:
+            raise TypeError(f"{type(self).__name__} runs '{self.policy}' networks, got '{net.policy}'")
+        self.device = torch.device(device)
+        self.net = net.to(self.device).eval()
+        self.reset()
+
+    @classmethod
+    def from_checkpoint(cls, path, modalities: Iterable[str] | None = None, **kwargs) -> "Runner":
+        from nostra.policies.checkpoint import load_net
+
+        return cls(load_net(path, expected_policy=cls.policy, expected_modalities=modalities), **kwargs)
+
+    @property
+    def modality_names(self) -> list[str]:
+        return self.net.modality_names
+
+    def reset(self) -> None:
+        raise NotImplementedError
+
+    def step(self, obs: dict[str, np.ndarray], imagine: Iterable[str] | None = None):
+        raise NotImplementedError
+
+    def _to_tensors(self, obs: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+        out = {}
+        for m in self.net.modalities:
+            if m.name not in obs:
+                raise KeyError(f"observation is missing {m.name!r}; this policy needs {self.modality_names}")
+            x = np.asarray(obs[m.name])
+            if x.shape != m.shape:
+                raise ValueError(f"observation {m.name!r} has shape {x.shape}, the policy expects {m.shape}")
+            out[m.name] = torch.as_tensor(x, device=self.device).unsqueeze(0)
+        return out
+
+    def _check_imagine(self, imagine: Iterable[str] | None) -> set[str] | None:
+        if imagine is None:
+            return None
+        names = set(imagine)
+        unknown = names - set(self.modality_names)
+        if unknown:
+            raise ValueError(f"cannot imagine unknown modalities {sorted(unknown)}; valid: {self.modality_names}")
+        return names

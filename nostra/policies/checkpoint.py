@@ -1,0 +1,65 @@
+"""Loading a trained policy from a Lightning checkpoint with no training code, with clear errors
+for a file that is not a policy checkpoint, another policy, or another modality set."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterable
+
+import torch
+
+from nostra.modality import as_modalities
+from nostra.policies.base import CHECKPOINT_FORMAT
+
+
+class CheckpointError(ValueError):
+    pass
+
+
+def read_meta(path) -> tuple[dict, dict]:
+    """(meta, state_dict) of a policy checkpoint written by PolicyModule."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} does not exist")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # torch raises several types for a non-checkpoint file
+        raise CheckpointError(f"{path}: not a readable torch checkpoint ({type(e).__name__}: {e})") from e
+    meta = ckpt.get("nostra") if isinstance(ckpt, dict) else None
+    if not isinstance(meta, dict) or "policy" not in meta or "state_dict" not in ckpt:
+        raise CheckpointError(f"{path}: not a nostra policy checkpoint (no 'nostra' metadata or 'state_dict')")
+    if meta.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path}: checkpoint format {meta.get('format')} is not the supported {CHECKPOINT_FORMAT}")
+    return meta, ckpt["state_dict"]
+
+
+def load_net(path, expected_policy: str | None = None, expected_modalities: Iterable[str] | None = None):
+    """Build the policy network stored in ``path`` and load its weights (eval mode)."""
+    from nostra.policies import POLICIES
+
+    meta, state = read_meta(path)
+    policy = meta["policy"]
+    if policy not in POLICIES:
+        raise CheckpointError(f"{path}: unknown policy {policy!r}; valid: {', '.join(POLICIES)}")
+    if expected_policy is not None and policy != expected_policy:
+        raise CheckpointError(f"{path} holds a '{policy}' policy, not '{expected_policy}'")
+    modalities = as_modalities(meta["modalities"])
+    names = [m.name for m in modalities]
+    if expected_modalities is not None and sorted(expected_modalities) != sorted(names):
+        raise CheckpointError(f"{path} was trained on modalities {sorted(names)}, "
+                              f"but {sorted(expected_modalities)} were given")
+    net = POLICIES[policy][0].net_cls(modalities, meta["action_dim"], **meta["net"])
+    weights = {k[len("net."):]: v for k, v in state.items() if k.startswith("net.")}
+    try:
+        net.load_state_dict(weights)
+    except RuntimeError as e:
+        raise CheckpointError(f"{path}: weights do not fit a '{policy}' network with its stored config: {e}") from e
+    return net.eval()
+
+
+def load_runner(path, modalities: Iterable[str] | None = None, **runner_kwargs):
+    """The runner of whatever policy ``path`` holds."""
+    from nostra.policies import runner_class
+
+    net = load_net(path, expected_modalities=modalities)
+    return runner_class(net.policy)(net, **runner_kwargs)

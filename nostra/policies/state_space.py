@@ -1,0 +1,116 @@
+"""The state-space policy shared by BC-NOSTRA and BC-RSSM: encoders -> multimodal RSSM ->
+modality transformer -> action decoder. The two differ only in how the latent is split: one group
+per modality (NOSTRA) or one joint group over all modalities (BC-RSSM, latent size 40 x M so both
+have the same capacity)."""
+
+from __future__ import annotations
+
+from typing import Iterable
+
+import numpy as np
+import torch
+from torch.distributions import Normal
+
+from nostra.imagination import AdaMLI, AdaMLIConfig
+from nostra.models.fusion import ModalityTransformer
+from nostra.models.heads import make_head
+from nostra.models.rssm import MultimodalRSSM, balanced_kl, diag_kl
+from nostra.policies.base import PolicyModule, PolicyNet, Runner
+
+JOINT = "joint"
+
+
+class StateSpaceNet(PolicyNet):
+    joint_latent = False
+
+    def __init__(self, modalities, action_dim: int, latent_dim: int = 40, deter: int = 256, hidden: int = 256,
+                 min_std: float = 0.1, fusion_embed: int = 256, fusion_heads: int = 2, fusion_blocks: int = 1,
+                 fusion_out: int = 256, decoder_hidden=(400, 400), head: str = "gaussian", action_std: float = 1.0,
+                 gmm_modes: int = 5, **encoder_kwargs):
+        super().__init__(modalities, action_dim, **encoder_kwargs)
+        names = self.modality_names
+        self.groups: dict[str, list[str]] = {JOINT: names} if self.joint_latent else {n: [n] for n in names}
+        self.core = MultimodalRSSM(
+            {g: (self.embed_dim * len(ms), latent_dim * len(ms)) for g, ms in self.groups.items()},
+            deter=deter, hidden=hidden, min_std=min_std)
+        self.fusion = ModalityTransformer([latent_dim * len(ms) for ms in self.groups.values()],
+                                          fusion_embed, fusion_heads, fusion_blocks, fusion_out)
+        self.head = make_head(head, fusion_out, list(decoder_hidden), action_dim, action_std, gmm_modes)
+
+    def group_embeds(self, embeds: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return {g: torch.cat([embeds[m] for m in ms], -1) for g, ms in self.groups.items()}
+
+    def group_of(self, modality: str) -> str:
+        return JOINT if self.joint_latent else modality
+
+    def rollout(self, obs: dict[str, torch.Tensor], imagine: dict[str, torch.Tensor] | None = None,
+                sample: bool = True):
+        """Filter a (B,T) sequence. imagine: group -> (B,T) bool prior-forcing mask (MLI / LI).
+        Returns fused features (B,T,F) and the posterior and prior of each group over (B,T,Z)."""
+        emb = self.group_embeds(self.encode(obs))
+        first = next(iter(emb.values()))
+        batch, steps = first.shape[:2]
+        h, z = self.core.initial(batch, first.device)
+        zs, posts, priors = [], [], []
+        for t in range(steps):
+            h, prior = self.core.transition(h, z)
+            post = self.core.posteriors(h, {g: e[:, t] for g, e in emb.items()})
+            mask = None if imagine is None else {g: m[:, t] for g, m in imagine.items()}
+            z = self.core.select(post, prior, mask, sample)
+            zs.append(z), posts.append(post), priors.append(prior)
+        feats = self.fusion([torch.stack([z[g] for z in zs], 1) for g in self.groups])
+        return feats, _stack(posts), _stack(priors)
+
+    def loss(self, batch: dict, beta: float = 1e-4, gamma: float = 0.1) -> dict:
+        """L = NLL + beta * [gamma KL(q || sg(p)) + (1 - gamma) KL(sg(q) || p)], KL summed over
+        latent dims and groups, NLL summed over action dims; both averaged over batch and time."""
+        feats, post, prior = self.rollout(batch["obs"])
+        nll = self.head.nll(feats, self.action_target(batch["actions"])).mean()
+        kl = {g: diag_kl(post[g], prior[g]).mean() for g in self.groups}
+        bal = sum(balanced_kl(post[g], prior[g], gamma).mean() for g in self.groups)
+        return {"loss": nll + beta * bal, "nll": nll, "kl": sum(kl.values()), "kl_nats": kl}
+
+    def act(self, feats: torch.Tensor) -> torch.Tensor:
+        return self.normalizer.unnormalize("actions", self.head.act(feats))
+
+
+def _stack(seq: list[dict[str, Normal]]) -> dict[str, Normal]:
+    return {g: Normal(torch.stack([d[g].loc for d in seq], 1), torch.stack([d[g].scale for d in seq], 1),
+                      validate_args=False) for g in seq[0]}
+
+
+class StateSpaceRunner(Runner):
+    """Runs the filter one step at a time. Both the posterior and the prior are computed at every
+    step, so the per-group KL is always observed; ``adaptive=True`` lets AdaMLI pick the latents."""
+
+    def __init__(self, net: StateSpaceNet, device: str = "cpu", adaptive: bool = False,
+                 adamli: AdaMLIConfig | dict | None = None):
+        cfg = adamli if isinstance(adamli, AdaMLIConfig) else AdaMLIConfig(**(adamli or {}))
+        self.detector = AdaMLI(list(net.groups), cfg) if adaptive else None
+        super().__init__(net, device)
+
+    def reset(self) -> None:
+        self.h, self.z = self.net.core.initial(1, self.device)
+        if self.detector is not None:
+            self.detector.reset()
+
+    @torch.no_grad()
+    def step(self, obs: dict[str, np.ndarray], imagine: Iterable[str] | None = None):
+        net, core = self.net, self.net.core
+        forced = self._check_imagine(imagine)
+        emb = net.group_embeds(net.encode(self._to_tensors(obs)))
+        h, prior = core.transition(self.h, self.z)
+        post = core.posteriors(h, emb)
+        kl = {g: float(diag_kl(post[g], prior[g])) for g in net.groups}
+        flags = self.detector.update(kl) if self.detector is not None else {g: False for g in net.groups}
+        if forced is not None:
+            flags = {g: any(m in forced for m in ms) for g, ms in net.groups.items()}
+        mask = {g: torch.tensor([f], device=self.device) for g, f in flags.items()}
+        self.h, self.z = h, core.select(post, prior, mask, sample=False)
+        action = net.act(net.fusion([self.z[g] for g in net.groups]))[0].cpu().numpy()
+        info = {"kl": kl, "imagined": {m: bool(flags[net.group_of(m)]) for m in net.modality_names}}
+        return action, info
+
+
+class StateSpaceModule(PolicyModule):
+    default_loss = {"beta": 1e-4, "gamma": 0.1}
