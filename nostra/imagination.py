@@ -10,17 +10,20 @@ modality is closed-loop and k = k_o while it is open-loop, reset at each switch:
 * open -> closed when  D(T-1) - D(T) >  f_c * r(T, k_o)
 
 As printed, the sum in r runs up to T itself, which would make opening impossible
-(f_o / k_c = 10 > 1); we average the k changes before T. (Pairing the windows by subscript
-instead, f_o with k_o, closes at every smooth local maximum of the KL inside a noise window:
-its recall on the traces of ``bench/adamli_traces.py`` falls to 0.3-0.9.) Choices the paper leaves open:
+(f_o / k_c = 10 > 1); we average the k changes before T. Pairing the windows by subscript
+instead (f_o with k_o) closes at every smooth local maximum of the KL inside a noise window: its
+recall on the traces of ``bench/adamli_traces.py`` falls to 0.3-0.9.
+
+Choices the paper leaves open:
 * a decision needs at least ``min_changes`` changes since the last switch; the average runs over
   up to k of them;
 * detection starts ``warmup`` steps into an episode (the first steps carry h_0's transient);
 * r is floored at ``eps`` so a perfectly flat KL series does not fire on round-off.
+
 Limits, measured: the thresholds assume a KL that moves smoothly from step to step, as on
 continuous sensor streams under structured corruption (a mask, a stuck or dead sensor).
 ``bench/adamli_traces.py`` shows detection degrading with step-to-step KL jitter; on a small
-trained policy whose clean KL jitters, clean modalities get imagined on a few percent of steps
+trained policy whose clean KL jitters, clean modalities get imagined on ~10% of steps
 (tests/test_effects.py bounds it); white noise on a sensor makes the KL inside the window jump
 by its own size each step, so the drop at the window's end is rarely 3x larger and the modality
 stays imagined after the noise ends.

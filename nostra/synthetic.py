@@ -15,7 +15,7 @@ from torch.utils.data import DataLoader, TensorDataset
 from nostra.modality import Modality
 
 
-def oscillator(n: int, steps: int, seed: int = 0, distractor_dim: int = 8, obs_noise: float = 0.01,
+def oscillator(n: int, steps: int, seed: int = 0, distractor_dim: int = 8, obs_noise: float = 0.001,
                image_size: int | None = None) -> dict:
     """Episodes of the oscillator task; with ``image_size`` an rgb view ``cam_image`` shows the point."""
     rng = np.random.default_rng(seed)

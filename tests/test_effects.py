@@ -69,7 +69,7 @@ def test_adamli_imagines_the_noisy_modality_only(trained):
     """AdaMLI in the runner: a stuck sensor (pos frozen at a wrong reading) is switched to its prior
     inside the window and back after it. The clean modalities' KL jitters from step to step on this
     small model and the paper's 2-step baseline sometimes takes a jitter for noise: we measured
-    about 16% of steps and bound it at 25%."""
+    about 9% of steps and bound it at 25%."""
     module, test = trained
     flags, truth, others = [], [], []
     for ep in range(8):

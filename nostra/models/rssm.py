@@ -1,9 +1,13 @@
 """The multimodal state-space core (paper section 3.1).
 
 A GRU shared by prior and posterior carries the deterministic state h_t. The stochastic latent is
-split into groups: NOSTRA has one group per modality, BC-RSSM one joint group over all of them.
+split into G groups: NOSTRA has one group per modality, BC-RSSM one joint group over all of them.
 For every group g there is an open-loop prior p(z_t^g | h_t) and a closed-loop posterior
 q(z_t^g | h_t, e_t^g), both diagonal Gaussians with learned mean and std.
+
+Groups share their sizes, so their heads are stored as stacked weights and run as one batched
+matmul (G small MLPs in one call): per-step cost then hardly grows with the number of modalities.
+Tensors of the groups are stacked on the leading dim: (G, B, ...).
 
 Initial state (the paper leaves it open): h_0 = 0 and z_0 = 0, so the first step's prior is a
 learned function of a constant and every episode starts from the same state.
@@ -11,25 +15,46 @@ learned function of a constant and every episode starts from the same state.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 from torch.distributions import Normal, kl_divergence
 from torch.nn import functional as F
 
-from nostra.models.encoders import mlp
 
+class GroupedLinear(nn.Module):
+    """G independent linear layers applied to (G, B, in) in one batched matmul."""
 
-class LatentHead(nn.Module):
-    """An MLP followed by two small MLPs for the mean and the std (paper: implementation details)."""
-
-    def __init__(self, in_dim: int, hidden: int, latent: int, min_std: float):
+    def __init__(self, groups: int, in_dim: int, out_dim: int):
         super().__init__()
-        self.trunk = nn.Sequential(nn.Linear(in_dim, hidden), nn.ELU())
-        self.mean = mlp(hidden, [hidden], latent)
-        self.std = mlp(hidden, [hidden], latent)
+        bound = 1 / math.sqrt(in_dim)  # nn.Linear's default init
+        self.weight = nn.Parameter(torch.empty(groups, in_dim, out_dim).uniform_(-bound, bound))
+        self.bias = nn.Parameter(torch.empty(groups, 1, out_dim).uniform_(-bound, bound))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.baddbmm(self.bias, x, self.weight)
+
+
+def grouped_mlp(groups: int, in_dim: int, hidden: int, out_dim: int) -> nn.Sequential:
+    return nn.Sequential(GroupedLinear(groups, in_dim, hidden), nn.ELU(), GroupedLinear(groups, hidden, out_dim))
+
+
+class LatentHeads(nn.Module):
+    """Per group: an MLP followed by two small MLPs for the mean and the std (paper section 3.1)."""
+
+    def __init__(self, groups: int, in_dim: int, hidden: int, latent: int, min_std: float):
+        super().__init__()
+        self.groups = groups
+        self.trunk = nn.Sequential(GroupedLinear(groups, in_dim, hidden), nn.ELU())
+        self.mean = grouped_mlp(groups, hidden, hidden, latent)
+        self.std = grouped_mlp(groups, hidden, hidden, latent)
         self.min_std = min_std
 
     def forward(self, x: torch.Tensor) -> Normal:
+        """x: (G, B, in), or (B, in) shared by all groups -> Normal over (G, B, latent)."""
+        if x.dim() == 2:
+            x = x.unsqueeze(0).expand(self.groups, -1, -1)
         y = self.trunk(x)
         return Normal(self.mean(y), F.softplus(self.std(y)) + self.min_std, validate_args=False)
 
@@ -54,43 +79,33 @@ def latent(d: Normal, sample: bool) -> torch.Tensor:
 
 
 class MultimodalRSSM(nn.Module):
-    """groups: name -> (embedding dim of its inputs, latent dim)."""
-
-    def __init__(self, groups: dict[str, tuple[int, int]], deter: int = 256, hidden: int = 256, min_std: float = 0.1):
+    def __init__(self, groups: int, embed: int, latent_dim: int, deter: int = 256, hidden: int = 256,
+                 min_std: float = 0.1):
         super().__init__()
-        self.groups = list(groups)
-        self.latent_dims = {g: z for g, (_, z) in groups.items()}
-        self.deter = deter
-        zsum = sum(self.latent_dims.values())
-        self.inp = nn.Sequential(nn.Linear(zsum, hidden), nn.ELU())
+        self.groups, self.latent_dim, self.deter = groups, latent_dim, deter
+        self.inp = nn.Sequential(nn.Linear(groups * latent_dim, hidden), nn.ELU())
         self.gru = nn.GRUCell(hidden, deter)
-        self.prior = nn.ModuleDict({g: LatentHead(deter, hidden, z, min_std) for g, (_, z) in groups.items()})
-        self.post = nn.ModuleDict({g: LatentHead(deter + e, hidden, z, min_std) for g, (e, z) in groups.items()})
+        self.prior = LatentHeads(groups, deter, hidden, latent_dim, min_std)
+        self.post = LatentHeads(groups, deter + embed, hidden, latent_dim, min_std)
 
-    def initial(self, batch: int, device=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        h = torch.zeros(batch, self.deter, device=device)
-        z = {g: torch.zeros(batch, d, device=device) for g, d in self.latent_dims.items()}
-        return h, z
+    def initial(self, batch: int, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+        return (torch.zeros(batch, self.deter, device=device),
+                torch.zeros(self.groups, batch, self.latent_dim, device=device))
 
-    def transition(self, h: torch.Tensor, z_prev: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, Normal]]:
-        """h_t = GRU(h_{t-1}, z_{t-1}^{1:G}); open-loop priors p(z_t^g | h_t)."""
-        x = torch.cat([z_prev[g] for g in self.groups], -1)
+    def transition(self, h: torch.Tensor, z_prev: torch.Tensor) -> tuple[torch.Tensor, Normal]:
+        """h_t = GRU(h_{t-1}, z_{t-1}^{1:G}); open-loop priors p(z_t^g | h_t) over (G, B, Z)."""
+        x = z_prev.transpose(0, 1).reshape(z_prev.shape[1], -1)
         h = self.gru(self.inp(x), h)
-        return h, {g: self.prior[g](h) for g in self.groups}
+        return h, self.prior(h)
 
-    def posteriors(self, h: torch.Tensor, embeds: dict[str, torch.Tensor]) -> dict[str, Normal]:
-        """Closed-loop posteriors q(z_t^g | h_t, e_t^g)."""
-        return {g: self.post[g](torch.cat([h, embeds[g]], -1)) for g in self.groups}
+    def posteriors(self, h: torch.Tensor, embeds: torch.Tensor) -> Normal:
+        """Closed-loop posteriors q(z_t^g | h_t, e_t^g); embeds (G, B, E)."""
+        return self.post(torch.cat([h.unsqueeze(0).expand(self.groups, -1, -1), embeds], -1))
 
     @staticmethod
-    def select(posts: dict[str, Normal], priors: dict[str, Normal], imagine: dict[str, torch.Tensor] | None,
-               sample: bool) -> dict[str, torch.Tensor]:
-        """Prior forcing: where imagine[g] is true the prior latent replaces the posterior one."""
-        out = {}
-        for g, q in posts.items():
-            zq = latent(q, sample)
-            if imagine is None or g not in imagine:
-                out[g] = zq
-            else:
-                out[g] = torch.where(imagine[g].unsqueeze(-1), latent(priors[g], sample), zq)
-        return out
+    def select(post: Normal, prior: Normal, imagine: torch.Tensor | None, sample: bool) -> torch.Tensor:
+        """Prior forcing: where imagine (G, B) is true the prior latent replaces the posterior one."""
+        z = latent(post, sample)
+        if imagine is None:
+            return z
+        return torch.where(imagine.unsqueeze(-1), latent(prior, sample), z)

@@ -30,35 +30,43 @@ class StateSpaceNet(PolicyNet):
         super().__init__(modalities, action_dim, **encoder_kwargs)
         names = self.modality_names
         self.groups: dict[str, list[str]] = {JOINT: names} if self.joint_latent else {n: [n] for n in names}
-        self.core = MultimodalRSSM(
-            {g: (self.embed_dim * len(ms), latent_dim * len(ms)) for g, ms in self.groups.items()},
-            deter=deter, hidden=hidden, min_std=min_std)
-        self.fusion = ModalityTransformer([latent_dim * len(ms) for ms in self.groups.values()],
-                                          fusion_embed, fusion_heads, fusion_blocks, fusion_out)
+        per_group = len(names) if self.joint_latent else 1
+        self.core = MultimodalRSSM(len(self.groups), self.embed_dim * per_group, latent_dim * per_group,
+                                   deter=deter, hidden=hidden, min_std=min_std)
+        self.fusion = ModalityTransformer(len(self.groups), latent_dim * per_group, fusion_embed, fusion_heads,
+                                          fusion_blocks, fusion_out)
         self.head = make_head(head, fusion_out, list(decoder_hidden), action_dim, action_std, gmm_modes)
 
-    def group_embeds(self, embeds: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        return {g: torch.cat([embeds[m] for m in ms], -1) for g, ms in self.groups.items()}
+    def group_embeds(self, embeds: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Per-modality embeddings (..., E) -> stacked group inputs (G, ..., E_g)."""
+        return torch.stack([torch.cat([embeds[m] for m in ms], -1) for ms in self.groups.values()])
 
     def group_of(self, modality: str) -> str:
         return JOINT if self.joint_latent else modality
 
+    def imagine_mask(self, imagine: dict[str, torch.Tensor]) -> torch.Tensor:
+        """{group: bool tensor} -> stacked (G, ...) mask; groups not named are never imagined."""
+        unknown = set(imagine) - set(self.groups)
+        if unknown:
+            raise ValueError(f"cannot imagine unknown groups {sorted(unknown)}; valid: {list(self.groups)}")
+        like = next(iter(imagine.values()))
+        return torch.stack([imagine[g] if g in imagine else torch.zeros_like(like) for g in self.groups])
+
     def rollout(self, obs: dict[str, torch.Tensor], imagine: dict[str, torch.Tensor] | None = None,
                 sample: bool = True):
         """Filter a (B,T) sequence. imagine: group -> (B,T) bool prior-forcing mask (MLI / LI).
-        Returns fused features (B,T,F) and the posterior and prior of each group over (B,T,Z)."""
-        emb = self.group_embeds(self.encode(obs))
-        first = next(iter(emb.values()))
-        batch, steps = first.shape[:2]
-        h, z = self.core.initial(batch, first.device)
+        Returns fused features (B,T,F) and the posteriors and priors over (G,B,T,Z)."""
+        emb = self.group_embeds(self.encode(obs))  # (G,B,T,E)
+        steps = emb.shape[2]
+        mask = None if imagine is None else self.imagine_mask(imagine)
+        h, z = self.core.initial(emb.shape[1], emb.device)
         zs, posts, priors = [], [], []
         for t in range(steps):
             h, prior = self.core.transition(h, z)
-            post = self.core.posteriors(h, {g: e[:, t] for g, e in emb.items()})
-            mask = None if imagine is None else {g: m[:, t] for g, m in imagine.items()}
-            z = self.core.select(post, prior, mask, sample)
+            post = self.core.posteriors(h, emb[:, :, t])
+            z = self.core.select(post, prior, None if mask is None else mask[:, :, t], sample)
             zs.append(z), posts.append(post), priors.append(prior)
-        feats = self.fusion([torch.stack([z[g] for z in zs], 1) for g in self.groups])
+        feats = self.fusion(torch.stack(zs, 2).permute(1, 2, 0, 3))  # tokens (B,T,G,Z)
         return feats, _stack(posts), _stack(priors)
 
     def loss(self, batch: dict, beta: float = 1e-4, gamma: float = 0.1) -> dict:
@@ -66,17 +74,17 @@ class StateSpaceNet(PolicyNet):
         latent dims and groups, NLL summed over action dims; both averaged over batch and time."""
         feats, post, prior = self.rollout(batch["obs"])
         nll = self.head.nll(feats, self.action_target(batch["actions"])).mean()
-        kl = {g: diag_kl(post[g], prior[g]).mean() for g in self.groups}
-        bal = sum(balanced_kl(post[g], prior[g], gamma).mean() for g in self.groups)
-        return {"loss": nll + beta * bal, "nll": nll, "kl": sum(kl.values()), "kl_nats": kl}
+        kl = diag_kl(post, prior).flatten(1).mean(1)  # (G,) nats per group
+        bal = balanced_kl(post, prior, gamma).flatten(1).mean(1).sum()
+        return {"loss": nll + beta * bal, "nll": nll, "kl": kl.sum(), "kl_nats": dict(zip(self.groups, kl))}
 
     def act(self, feats: torch.Tensor) -> torch.Tensor:
         return self.normalizer.unnormalize("actions", self.head.act(feats))
 
 
-def _stack(seq: list[dict[str, Normal]]) -> dict[str, Normal]:
-    return {g: Normal(torch.stack([d[g].loc for d in seq], 1), torch.stack([d[g].scale for d in seq], 1),
-                      validate_args=False) for g in seq[0]}
+def _stack(seq: list[Normal]) -> Normal:
+    """Per-step (G,B,Z) distributions -> one over (G,B,T,Z)."""
+    return Normal(torch.stack([d.loc for d in seq], 2), torch.stack([d.scale for d in seq], 2), validate_args=False)
 
 
 class StateSpaceRunner(Runner):
@@ -101,13 +109,13 @@ class StateSpaceRunner(Runner):
         emb = net.group_embeds(net.encode(self._to_tensors(obs)))
         h, prior = core.transition(self.h, self.z)
         post = core.posteriors(h, emb)
-        kl = {g: float(diag_kl(post[g], prior[g])) for g in net.groups}
+        kl = dict(zip(net.groups, diag_kl(post, prior)[:, 0].tolist()))
         flags = self.detector.update(kl) if self.detector is not None else {g: False for g in net.groups}
         if forced is not None:
             flags = {g: any(m in forced for m in ms) for g, ms in net.groups.items()}
-        mask = {g: torch.tensor([f], device=self.device) for g, f in flags.items()}
+        mask = torch.tensor([[flags[g]] for g in net.groups], device=self.device)
         self.h, self.z = h, core.select(post, prior, mask, sample=False)
-        action = net.act(net.fusion([self.z[g] for g in net.groups]))[0].cpu().numpy()
+        action = net.act(net.fusion(self.z.transpose(0, 1)))[0].cpu().numpy()
         info = {"kl": kl, "imagined": {m: bool(flags[net.group_of(m)]) for m in net.modality_names}}
         return action, info
 
