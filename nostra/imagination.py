@@ -45,7 +45,7 @@ class AdaMLIConfig:
     k_c: int = 2
     min_changes: int = 5
     warmup: int = 10
-    eps: float = 1e-6
+    eps: float = 1e-3  # nats: a thousandth of a nat is no information change
 
 
 class KLSwitch:

@@ -126,6 +126,7 @@ class Runner:
     """
 
     policy: str = ""
+    can_imagine: bool = False  # whether step(imagine=...) and adaptive imagination are supported
 
     def __init__(self, net: PolicyNet, device: str = "cpu"):
         if net.policy != self.policy:

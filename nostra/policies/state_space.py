@@ -91,6 +91,8 @@ class StateSpaceRunner(Runner):
     """Runs the filter one step at a time. Both the posterior and the prior are computed at every
     step, so the per-group KL is always observed; ``adaptive=True`` lets AdaMLI pick the latents."""
 
+    can_imagine = True
+
     def __init__(self, net: StateSpaceNet, device: str = "cpu", adaptive: bool = False,
                  adamli: AdaMLIConfig | dict | None = None):
         cfg = adamli if isinstance(adamli, AdaMLIConfig) else AdaMLIConfig(**(adamli or {}))

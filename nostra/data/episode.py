@@ -1,0 +1,136 @@
+"""An episode as every format reader yields it, the per-episode metadata contract, and the checks
+that every episode passes before anything is written to the store."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nostra.data.errors import DataError
+from nostra.modality import kind_of_key
+
+# The metadata contract between simulation, store and retrieval, with the defaults used when a
+# source lacks a field (external data usually does).
+META_DEFAULTS = {
+    "task": "", "language": "", "skill": "", "objects": [], "camera_pose": {}, "object_placements": {},
+    "variation": {}, "success": None, "seed": None,
+}
+NESTED = ("objects", "camera_pose", "object_placements", "variation", "masks")
+# Per-demo arrays that are not observations; kept so an export is a complete robomimic file.
+EXTRA_KEYS = ("states", "rewards", "dones")
+
+
+@dataclass
+class Episode:
+    demo_id: str
+    actions: np.ndarray
+    obs: dict[str, np.ndarray]
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+
+def normalize_meta(raw: dict, file, demo: str, defaults: dict | None = None) -> dict:
+    """Contract fields with sensible types; nested values may arrive as JSON strings."""
+    out = {}
+    given = {k: v for k, v in (defaults or {}).items() if v is not None}
+    for k, default in {**META_DEFAULTS, **given}.items():
+        v = raw.get(k)
+        if v is None:
+            v = default
+        out[k] = _coerce(k, v, file, demo)
+    out["masks"] = sorted(_coerce("masks", raw.get("masks") or [], file, demo))
+    out["model_file"] = str(raw.get("model_file") or "")
+    return out
+
+
+def _coerce(key: str, v, file, demo: str):
+    if isinstance(v, bytes):
+        v = v.decode()
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, np.ndarray):
+        v = [x.decode() if isinstance(x, bytes) else x for x in v.tolist()]
+    if key in NESTED and isinstance(v, str):
+        try:
+            v = json.loads(v) if v else ([] if key in ("objects", "masks") else {})
+        except json.JSONDecodeError as e:
+            raise DataError(file, f"metadata is not valid JSON ({e})", demo, key) from None
+    if key == "success":
+        return None if v is None else bool(v)
+    if key == "seed":
+        return None if v is None or v == "" else int(v)
+    if key in ("task", "language", "skill"):
+        return str(v)
+    return v
+
+
+def check_episode(ep: Episode, file, shapes: dict) -> Episode:
+    """Validate one episode and cast it to the store's dtypes. ``shapes`` (key -> per-step shape)
+    is filled from the first episode; later episodes must agree with it."""
+    demo = ep.demo_id
+    if ep.actions is None:
+        raise DataError(file, "missing (every demo needs actions)", demo, "actions")
+    n = len(ep.actions) if np.ndim(ep.actions) else 0
+    if n == 0:
+        raise DataError(file, "empty episode (0 steps)", demo, "actions")
+    actions = _lowdim(ep.actions, file, demo, "actions")
+    obs = {k: _obs(v, file, demo, k) for k, v in ep.obs.items()}
+    extras = {k: _numeric(v, file, demo, k) for k, v in ep.extras.items()}
+    for k, v in {"actions": actions, **obs, **extras}.items():
+        if len(v) != n:
+            raise DataError(file, f"has {len(v)} steps but actions has {n}", demo, k)
+        _check_shape(k, v, file, demo, shapes)
+    return Episode(demo, actions, obs, extras, ep.meta)
+
+
+def _check_shape(key, v, file, demo, shapes):
+    if key not in shapes:
+        shapes[key] = v.shape[1:]
+    elif v.shape[1:] != shapes[key]:
+        raise DataError(file, f"per-step shape {v.shape[1:]} differs from {shapes[key]} in earlier demos", demo, key)
+
+
+def _numeric(v, file, demo, key) -> np.ndarray:
+    v = np.asarray(v)
+    if v.dtype.kind not in "biuf":
+        raise DataError(file, f"dtype {v.dtype} is not numeric (valid: bool, int, uint, float)", demo, key)
+    if v.ndim == 0:
+        raise DataError(file, "is a scalar; expected one row per step", demo, key)
+    if v.dtype.kind == "f" and not np.isfinite(v).all():
+        bad = int(np.argwhere(~np.isfinite(v.reshape(len(v), -1)))[0, 0])
+        raise DataError(file, f"contains NaN or Inf (first at step {bad})", demo, key)
+    return v
+
+
+def _lowdim(v, file, demo, key) -> np.ndarray:
+    v = _numeric(v, file, demo, key)
+    if v.ndim == 1:
+        v = v[:, None]
+    if v.ndim != 2:
+        raise DataError(file, f"shape {v.shape}: expected (steps, dim)", demo, key)
+    return v.astype(np.float32, copy=False)
+
+
+def _obs(v, file, demo, key) -> np.ndarray:
+    kind = kind_of_key(key)
+    if kind == "lowdim":
+        return _lowdim(v, file, demo, key)
+    v = _numeric(v, file, demo, key)
+    if kind == "rgb":
+        if v.dtype != np.uint8:
+            raise DataError(file, f"rgb images must be uint8, got {v.dtype}", demo, key)
+        if v.ndim != 4 or v.shape[-1] != 3:
+            raise DataError(file, f"rgb images must be (steps, H, W, 3), got {v.shape}", demo, key)
+        return v
+    if v.dtype.kind != "f":
+        raise DataError(file, f"depth must be float (metres), got {v.dtype}", demo, key)
+    if v.ndim == 3:
+        v = v[..., None]
+    if v.ndim != 4 or v.shape[-1] != 1:
+        raise DataError(file, f"depth must be (steps, H, W, 1), got {v.shape}", demo, key)
+    return v.astype(np.float32, copy=False)

@@ -1,0 +1,161 @@
+"""robomimic HDF5: ``data`` (attrs ``total``, ``env_args`` JSON) holding ``demo_N`` groups (attrs
+``num_samples``, ``model_file`` and our per-episode metadata, nested values as JSON strings) with
+``actions``, ``states``, ``rewards``, ``dones``, ``obs/<key>``, ``next_obs/<key>``; ``mask/<name>``
+lists demo names as byte strings. Any file in this layout reads, not only ours: image keys may be
+missing and extra keys are kept."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+from typing import Iterable
+
+import h5py
+import numpy as np
+from tqdm import tqdm
+
+from nostra.data.episode import EXTRA_KEYS, NESTED, Episode, META_DEFAULTS, normalize_meta
+from nostra.data.errors import DataError
+
+FMT = "robomimic"
+
+
+def sniff(path: Path) -> bool:
+    return path.is_file() and h5py.is_hdf5(path)
+
+
+def _natural(name: str):
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name)]
+
+
+def _open(path: Path) -> h5py.File:
+    try:
+        return h5py.File(path, "r")
+    except OSError as e:  # truncated / corrupt / not HDF5
+        raise DataError(path, f"cannot be read as HDF5 (truncated or corrupt?): {e}") from None
+
+
+class RobomimicSource:
+    fmt = FMT
+
+    def __init__(self, path, keys: list[str] | None = None, defaults: dict | None = None):
+        self.path, self.keys, self.defaults = Path(path), keys, defaults or {}
+        with _open(self.path) as f:
+            if "data" not in f or not isinstance(f["data"], h5py.Group):
+                raise DataError(self.path, "no 'data' group: not a robomimic file", key="data")
+            self.demos = sorted(f["data"].keys(), key=_natural)
+            if not self.demos:
+                raise DataError(self.path, "the 'data' group holds no demos", key="data")
+            self.env_args = _env_args(f["data"].attrs.get("env_args"), self.path)
+            self.masks = _masks(f, self.path)
+
+    @property
+    def files(self) -> list[Path]:
+        return [self.path]
+
+    @property
+    def attrs(self) -> dict:
+        return {"env_args": self.env_args}
+
+    def __len__(self) -> int:
+        return len(self.demos)
+
+    def __iter__(self):
+        with _open(self.path) as f:
+            for demo in self.demos:
+                yield self._episode(f["data"][demo], demo)
+
+    def _episode(self, g, demo: str) -> Episode:
+        read = lambda grp, k: _read(grp, k, self.path, demo)  # noqa: E731
+        actions = read(g, "actions") if "actions" in g else None
+        obs_g = g.get("obs")
+        names = list(obs_g.keys()) if obs_g is not None else []
+        keys = self.keys if self.keys is not None else names
+        missing = [k for k in keys if k not in names]
+        if missing:
+            raise DataError(self.path, f"obs has no such key; it has {names}", demo, f"obs/{missing[0]}")
+        obs = {k: read(obs_g, k) for k in keys}
+        extras = {k: read(g, k) for k in EXTRA_KEYS if k in g}
+        raw = {k: g.attrs[k] for k in (*META_DEFAULTS, "model_file") if k in g.attrs}
+        raw["masks"] = [m for m, members in self.masks.items() if demo in members]
+        if not raw.get("task") and self.env_args.get("env_name"):
+            raw["task"] = self.env_args["env_name"]
+        return Episode(demo, actions, obs, extras, normalize_meta(raw, self.path, demo, self.defaults))
+
+
+def _read(g, key: str, path, demo: str) -> np.ndarray:
+    if not isinstance(g[key], h5py.Dataset):
+        raise DataError(path, "is a group, expected a dataset", demo, key)
+    try:
+        return g[key][()]
+    except (OSError, TypeError, ValueError) as e:
+        raise DataError(path, f"cannot be read ({e})", demo, key) from None
+
+
+def _env_args(raw, path) -> dict:
+    if raw is None:
+        return {}
+    try:
+        return json.loads(raw.decode() if isinstance(raw, bytes) else raw)
+    except json.JSONDecodeError as e:
+        raise DataError(path, f"data.attrs['env_args'] is not JSON ({e})", key="env_args") from None
+
+
+def _masks(f, path) -> dict[str, set[str]]:
+    if "mask" not in f:
+        return {}
+    out = {}
+    for name, ds in f["mask"].items():
+        out[name] = {x.decode() if isinstance(x, bytes) else str(x) for x in np.asarray(ds[()]).ravel()}
+    return out
+
+
+def write(path, episodes: Iterable[Episode], env_args: dict, total: int | None = None,
+          next_obs: bool = True, progress: bool = True) -> Path:
+    """Write episodes as a robomimic file. Written beside the target and renamed at the end, so a
+    failure never leaves a half-written file. ``next_obs`` is each obs shifted by one step (the last
+    step repeated), as peers' loaders expect the group."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    masks: dict[str, list[str]] = {}
+    try:
+        with h5py.File(tmp, "w") as f:
+            data = f.create_group("data")
+            steps = 0
+            for ep in tqdm(episodes, total=total, desc=f"export {path.name}", disable=not progress):
+                _write_demo(data.create_group(ep.demo_id), ep, next_obs)
+                steps += len(ep)
+                for m in ep.meta.get("masks", []):
+                    masks.setdefault(m, []).append(ep.demo_id)
+            data.attrs["total"] = steps
+            data.attrs["env_args"] = json.dumps(env_args)
+            for name, demos in masks.items():
+                f.create_dataset(f"mask/{name}", data=np.array(demos, dtype="S"))
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def _write_demo(g, ep: Episode, next_obs: bool) -> None:
+    n = len(ep)
+    g.attrs["num_samples"] = n
+    for k, v in ep.meta.items():
+        if k == "masks" or v is None:
+            continue
+        g.attrs[k] = json.dumps(v) if k in NESTED else v
+    g.attrs.setdefault("model_file", "")
+    g.create_dataset("actions", data=ep.actions)
+    extras = dict(ep.extras)
+    extras.setdefault("rewards", np.zeros(n, np.float32))
+    extras.setdefault("dones", (np.arange(n) == n - 1).astype(np.int64))
+    for k, v in extras.items():
+        g.create_dataset(k, data=v)
+    for k, v in ep.obs.items():
+        opts = {"compression": "gzip", "compression_opts": 4} if v.dtype == np.uint8 else {}
+        g.create_dataset(f"obs/{k}", data=v, chunks=True if opts else None, **opts)
+        if next_obs:
+            g.create_dataset(f"next_obs/{k}", data=np.concatenate([v[1:], v[-1:]]), chunks=True if opts else None, **opts)
