@@ -62,8 +62,8 @@ def read_manifest(path: str | os.PathLike, store: Store) -> tuple[list[tuple[str
         raise FileNotFoundError(f"manifest {path} does not exist")
     raw = path.read_bytes()
     try:
-        entries = json.loads(raw)["episodes"]
-        pairs = [(str(e["collection"]), int(e["episode"])) for e in entries]
+        manifest = json.loads(raw)
+        pairs = [(str(e["collection"]), int(e["episode"])) for e in manifest["episodes"]]
     except (ValueError, KeyError, TypeError) as e:
         raise ValueError(f"manifest {path}: expected {{'episodes': [{{'collection', 'episode', ...}}]}} ({e})") from e
     have = set(store.collections())
@@ -74,7 +74,7 @@ def read_manifest(path: str | os.PathLike, store: Store) -> tuple[list[tuple[str
         n = len(store.episode_ends(c))
         if not 0 <= ep < n:
             raise ValueError(f"manifest {path} names episode {ep} of {c!r}, which has episodes 0..{n - 1}")
-    return pairs, hashlib.sha256(raw).hexdigest()[:16]
+    return pairs, manifest.get("hash") or hashlib.sha256(raw).hexdigest()[:16]
 
 
 def _episodes(spec: TrainSpec, store: Store):
