@@ -20,12 +20,12 @@ def _app(cfg) -> None:
     model = OmegaConf.to_container(cfg.model, resolve=True)
     spec = TrainSpec(
         policy=model["policy"], store=cfg.data.store, collections=list(collections),
-        keys=list(t.keys), out_dir=t.out_dir, stage=t.stage, net=model.get("net", {}), optim=model.get("optim", {}),
+        keys=list(t.obs_keys), out_dir=t.out_dir, stage=t.stage, net=model.get("net", {}), optim=model.get("optim", {}),
         loss=model.get("loss", {}), seq_len=cfg.data.seq_len, batch_size=cfg.data.batch_size, max_steps=t.max_steps,
         num_workers=cfg.data.workers, val_fraction=cfg.data.val_fraction, val_every=t.val_every,
         ckpt_every=t.ckpt_every, init_from=t.init_from, num_demos=t.num_demos, manifest=t.manifest,
         cotrain_ratio=t.cotrain_ratio, seed=cfg.seed, resume=t.resume, progress=t.progress,
-        experiment=t.experiment, run_name=t.run_name,
+        experiment=t.experiment, run_name=t.run_name, parent_run_id=t.parent_run_id,
         params={"task": cfg.task.name, "profile": cfg.profile.name},
         trainer=OmegaConf.to_container(t.trainer, resolve=True))
     train(spec)
