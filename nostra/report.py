@@ -152,7 +152,7 @@ def tables(df: pd.DataFrame) -> dict[str, tuple]:
                                           "Table 4: success (%) after fine-tuning a pretrained policy"),
         "table5_cotrain": table_settings(cells, "cotrain", ROWS_FLOW,
                                          "Table 5: success (%) when co-training with retrieved data",
-                                         baseline="target only"),
+                                         baseline="target_only"),
     }
 
 

@@ -24,7 +24,7 @@ def test_tables_from_mlflow(tmp_path):
     _log("evaluate-old", {"table": "robustness"}, {"success/Lift/mask/nostra_mli": 0.1}, tmp_path)
     _log("evaluate", {"table": "robustness"}, {"success/Lift/none/nostra": 1.0, "success/Lift/mask/nostra": 0.25,
                                                "success/Lift/mask/nostra_mli": 0.75}, tmp_path)
-    for setting, v in (("target only", 0.4), ("obj_skill", 0.5), ("all", 0.7)):
+    for setting, v in (("target_only", 0.4), ("obj_skill", 0.5), ("all", 0.7)):
         _log("evaluate-co", {"table": "cotrain", "setting": setting}, {"success/Lift/none/nostra": v}, tmp_path)
     _log("offline-Lift", {"setting": "good view"}, {"kl_nats/agentview_image": 3.0, "kl_nats/robot0_eef_pos": 0.5},
          tmp_path)
@@ -36,7 +36,7 @@ def test_tables_from_mlflow(tmp_path):
     t1_md = (tmp_path / "report/table1_robustness.md").read_text()
     assert "no evaluation run logged" in t1_md and "Lift/mask/lstm" in t1_md
     t5 = pd.read_csv(tmp_path / "report/table5_cotrain.csv").set_index("Method")
-    assert t5.loc["BC-NOSTRA", "Lift all"] == "70 (+30)" and t5.loc["BC-NOSTRA", "Lift target only"] == "40"
+    assert t5.loc["BC-NOSTRA", "Lift all"] == "70 (+30)" and t5.loc["BC-NOSTRA", "Lift target_only"] == "40"
     t3 = pd.read_csv(tmp_path / "report/table3_kl.csv").set_index("Input")
     assert t3.loc["agentview_image", "good view"] == 3.0 and t3.loc["Total", "good view"] == 3.5
     text = index.read_text()

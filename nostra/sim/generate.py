@@ -1,0 +1,245 @@
+"""Scripted-expert demonstrations in robomimic's HDF5 layout, collected by parallel workers.
+
+Layout written (robomimic's, plus the episode metadata of the contract as demo attributes)::
+
+    data                attrs: total, env_args (JSON: env_name, env_version, type=1, env_kwargs)
+    data/demo_N         attrs: num_samples, model_file (MJCF), task, language, skill, objects,
+                               camera_pose, object_placements, variation (JSON strings), success, seed
+      states (N, D)     flattened MuJoCo state before each action
+      actions (N, 7)    rewards (N,)    dones (N,)
+      obs/<key>         observation before each action;  next_obs/<key>: after it
+    mask/train, mask/valid   demo names (byte strings)
+
+Episodes whose expert fails are dropped and counted. The file is written under a temporary name
+and renamed when complete, so an interrupted run leaves no partial file behind.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Callable, Iterator, Mapping
+
+import h5py
+import numpy as np
+from tqdm import tqdm
+
+from nostra.sim.env import make_env, robomimic_env_args, robosuite_kwargs
+from nostra.sim.experts import make_expert
+from nostra.sim.tasks import get_task
+from nostra.sim.variations import Variation, sample_variation
+
+META_JSON = ("objects", "camera_pose", "object_placements", "variation")  # nested values: JSON strings
+
+
+@dataclass
+class GenerateConfig:
+    task: str
+    out: str
+    episodes: int = 20  # successful demos wanted
+    workers: int = 2
+    image_size: int = 84
+    depth: bool = True
+    tuned_render: bool = True
+    seed_offset: int = 0
+    max_steps: int | None = None  # None: the task's horizon
+    steps_after_success: int = 10
+    max_attempts_factor: float = 2.0  # give up after episodes * factor attempts
+    valid_fraction: float = 0.1
+    variation: Mapping = field(default_factory=dict)  # ranges, see variations.RANGE_KEYS
+
+    def __post_init__(self):
+        get_task(self.task)  # unknown task -> ValueError listing the valid ones
+        if self.episodes < 1:
+            raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if not 0.0 <= self.valid_fraction < 1.0:
+            raise ValueError(f"valid_fraction must be in [0, 1), got {self.valid_fraction}")
+        sample_variation(self.variation, np.random.default_rng(0))  # bad ranges fail before any work
+
+
+# ---- one episode -------------------------------------------------------------------------------
+
+def run_episode(env, expert, seed: int, variation: Variation | None = None, max_steps: int | None = None,
+                steps_after_success: int = 10) -> dict:
+    """Roll the expert out; stop `steps_after_success` steps after the task first succeeds."""
+    obs = env.reset(seed=seed, variation=variation)
+    expert.reset()
+    max_steps = max_steps or env.spec.horizon
+    frames, states, actions, rewards = [obs], [], [], []
+    succeeded_at = None
+    for t in range(max_steps):
+        states.append(env.sim_state())
+        action = expert.act(obs)
+        obs, reward, done, info = env.step(action)
+        frames.append(obs)
+        actions.append(action)
+        rewards.append(reward)
+        if info["success"] and succeeded_at is None:
+            succeeded_at = t
+        if done or (succeeded_at is not None and t >= succeeded_at + steps_after_success):
+            break
+    meta = env.metadata()
+    meta["success"] = bool(succeeded_at is not None and meta["success"])
+    n = len(actions)
+    return {
+        "meta": meta, "model_file": env.model_xml(),
+        "obs": {k: np.stack([f[k] for f in frames]) for k in frames[0]},
+        "states": np.stack(states), "actions": np.stack(actions).astype(np.float32),
+        "rewards": np.asarray(rewards, dtype=np.float32), "dones": (np.arange(n) == n - 1).astype(np.uint8),
+    }
+
+
+# ---- workers -------------------------------------------------------------------------------------
+
+_WORKER: dict = {}
+
+
+def _init_worker(cfg: GenerateConfig) -> None:
+    env = make_env(cfg.task, image_size=cfg.image_size, depth=cfg.depth, tuned_render=cfg.tuned_render,
+                   seed=cfg.seed_offset)
+    _WORKER.update(env=env, expert=make_expert(env), cfg=cfg)
+
+
+def _episode_job(job: tuple[int, dict]) -> dict:
+    seed, variation = job
+    cfg = _WORKER["cfg"]
+    return run_episode(_WORKER["env"], _WORKER["expert"], seed, Variation.from_dict(variation), cfg.max_steps,
+                       cfg.steps_after_success)
+
+
+def _jobs(cfg: GenerateConfig) -> Iterator[tuple[int, dict]]:
+    """(seed, variation) per attempt; the variation is drawn from the seed, so reruns match."""
+    attempts = int(np.ceil(cfg.episodes * max(1.0, cfg.max_attempts_factor)))
+    for seed in range(cfg.seed_offset, cfg.seed_offset + attempts):
+        yield seed, sample_variation(cfg.variation, np.random.default_rng([seed, 7])).to_dict()
+
+
+def _episodes(cfg: GenerateConfig, wanted: Callable[[], int]) -> Iterator[dict]:
+    """Episodes in seed order; workers run ahead, one env per process, but never on more episodes
+    than `wanted()` (demos still missing) so none are thrown away at the end."""
+    if cfg.workers <= 1:
+        _init_worker(cfg)
+        try:
+            yield from map(_episode_job, _jobs(cfg))
+        finally:
+            _WORKER.pop("env").close()
+        return
+    ctx = get_context("spawn")  # fresh interpreters: no GL context or MuJoCo state inherited
+    with ProcessPoolExecutor(cfg.workers, mp_context=ctx, initializer=_init_worker, initargs=(cfg,)) as pool:
+        pending, jobs = [], _jobs(cfg)
+        try:
+            while True:
+                while len(pending) < min(2 * cfg.workers, wanted()):
+                    job = next(jobs, None)
+                    if job is None:
+                        break
+                    pending.append(pool.submit(_episode_job, job))
+                if not pending:
+                    return
+                yield pending.pop(0).result()
+        finally:
+            for f in pending:
+                f.cancel()
+
+
+# ---- the HDF5 file ----------------------------------------------------------------------------
+
+class RobomimicWriter:
+    """Writes demos to `<path>.tmp` and renames it to `path` on `close()`; `abort()` removes it."""
+
+    def __init__(self, path: str | os.PathLike, env_args: dict):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        self.file = h5py.File(self.tmp, "w")
+        self.data = self.file.create_group("data")
+        self.env_args, self.names, self.total = env_args, [], 0
+
+    def add(self, episode: dict) -> str:
+        name = f"demo_{len(self.names)}"
+        g = self.data.create_group(name)
+        n = len(episode["actions"])
+        g.attrs["num_samples"] = n
+        g.attrs["model_file"] = episode["model_file"]
+        for key, value in episode["meta"].items():
+            g.attrs[key] = json.dumps(value) if key in META_JSON else value
+        for key in ("states", "actions", "rewards", "dones"):
+            g.create_dataset(key, data=episode[key])
+        for key, frames in episode["obs"].items():
+            self._frames(g, f"obs/{key}", frames[:-1])
+            self._frames(g, f"next_obs/{key}", frames[1:])
+        self.names.append(name)
+        self.total += n
+        return name
+
+    @staticmethod
+    def _frames(g: h5py.Group, key: str, arr: np.ndarray) -> None:
+        if arr.ndim >= 3:  # images: one compressed chunk per frame
+            g.create_dataset(key, data=arr, chunks=(1, *arr.shape[1:]), compression="gzip", compression_opts=4)
+        else:
+            g.create_dataset(key, data=arr)
+
+    def close(self, valid_fraction: float = 0.1, seed: int = 0) -> Path:
+        self.data.attrs["total"] = self.total
+        self.data.attrs["env_args"] = json.dumps(self.env_args)
+        train, valid = split_names(self.names, valid_fraction, seed)
+        self.file.create_dataset("mask/train", data=np.array(train, dtype="S"))
+        self.file.create_dataset("mask/valid", data=np.array(valid, dtype="S"))
+        self.file.close()
+        os.replace(self.tmp, self.path)
+        return self.path
+
+    def abort(self) -> None:
+        self.file.close()
+        self.tmp.unlink(missing_ok=True)
+
+
+def split_names(names: list[str], valid_fraction: float, seed: int = 0) -> tuple[list[str], list[str]]:
+    """A seeded train/valid split (at least one valid demo when there are two or more)."""
+    order = np.random.default_rng(seed).permutation(len(names))
+    n_valid = int(round(len(names) * valid_fraction))
+    if valid_fraction > 0 and len(names) >= 2:
+        n_valid = max(1, n_valid)
+    valid = sorted((names[i] for i in order[:n_valid]), key=lambda s: int(s.split("_")[1]))
+    return [n for n in names if n not in valid], valid
+
+
+def generate(cfg: GenerateConfig, progress: bool = True) -> dict:
+    """Collect `cfg.episodes` successful expert demos into `cfg.out`; returns a summary."""
+    start = time.time()
+    env_args = _env_args(cfg)
+    writer = RobomimicWriter(cfg.out, env_args)
+    kept = failed = 0
+    bar = tqdm(total=cfg.episodes, desc=f"generate {cfg.task}", unit="demo", disable=not progress)
+    try:
+        for episode in _episodes(cfg, wanted=lambda: cfg.episodes - kept):
+            if episode["meta"]["success"]:
+                writer.add(episode)
+                kept += 1
+                bar.update(1)
+            else:
+                failed += 1
+                bar.set_postfix(failed=failed)
+            if kept >= cfg.episodes:
+                break
+        if kept == 0:
+            raise RuntimeError(f"the {cfg.task} expert failed all {failed} episodes; nothing written to {cfg.out}")
+        path = writer.close(cfg.valid_fraction, cfg.seed_offset)
+    except BaseException:
+        writer.abort()
+        raise
+    finally:
+        bar.close()
+    return {"path": str(path), "task": get_task(cfg.task).name, "demos": kept, "failed": failed,
+            "attempts": kept + failed, "expert_success_rate": round(kept / (kept + failed), 4),
+            "samples": writer.total, "seconds": round(time.time() - start, 1)}
+
+
+def _env_args(cfg: GenerateConfig) -> dict:
+    spec = get_task(cfg.task)
+    return robomimic_env_args(spec, robosuite_kwargs(spec, cfg.image_size, cfg.depth, render=True))

@@ -1,0 +1,141 @@
+"""One evaluation episode: a policy runner in a task, under a noise schedule, recording what
+happened at every step. Also the worker-process side of parallel evaluation (one env and the
+runners it needs, cached per process)."""
+
+from __future__ import annotations
+
+import os
+import traceback
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nostra.sim.noise import NoiseSchedule
+
+
+@dataclass
+class EpisodeJob:
+    task: str
+    noise: str
+    variant: str
+    checkpoint: str
+    mode: str
+    seed: int
+    horizon: int
+    windows: list
+    noise_params: dict = field(default_factory=dict)
+    image_size: int = 84
+    video_path: str | None = None
+
+
+@dataclass
+class EpisodeResult:
+    job: EpisodeJob
+    success: bool
+    steps: int
+    reason: str = ""          # why a failed episode failed when it was not the policy (crash, instability)
+    record: dict = field(default_factory=dict)   # per-step arrays
+
+
+def run_episode(env, runner, job: EpisodeJob) -> EpisodeResult:
+    """Roll out until success or the horizon (robomimic's convention: stop at success)."""
+    schedule = NoiseSchedule(job.noise, job.windows, job.noise_params)
+    rng = np.random.default_rng([job.seed, 7])  # noise draws: the same for every variant
+    oracle = schedule.keys & set(runner.modality_names) if job.mode == "oracle" else None
+    obs = env.reset(seed=job.seed)
+    runner.reset()
+    rec = {"action": [], "eef_pos": [], "noise": [], "kl": [], "imagined": []}
+    frames, success, t = [], False, 0
+    try:
+        for t in range(job.horizon):
+            seen = schedule.corrupt(obs, t)
+            if not all(np.isfinite(v).all() for v in seen.values() if v.dtype.kind == "f"):
+                return _failed(job, t, rec, "simulation became unstable (non-finite observation)")
+            action, info = runner.step(seen, imagine=oracle if schedule.active(t) else None)
+            if job.video_path:
+                frames.append(seen.get("agentview_image"))
+            rec["action"].append(action), rec["eef_pos"].append(obs["robot0_eef_pos"])
+            rec["noise"].append(schedule.active(t)), rec["kl"].append(info.get("kl", {}))
+            rec["imagined"].append(info.get("imagined", {}))
+            schedule.prepare(env, t + 1, rng)
+            obs, _, _, step_info = env.step(np.clip(action, -1.0, 1.0))
+            if _unstable(env):
+                return _failed(job, t + 1, rec, "MuJoCo instability (bad QACC: the simulation diverged)")
+            if step_info["success"]:
+                success = True
+                break
+    finally:
+        schedule.close(env, t + 1)
+    if frames and frames[0] is not None:
+        _write_video(job.video_path, frames)
+    return EpisodeResult(job, success, t + 1, record=_pack(rec))
+
+
+def _unstable(env) -> bool:
+    import mujoco
+
+    return env.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0
+
+
+def _failed(job, t, rec, reason) -> EpisodeResult:
+    return EpisodeResult(job, False, t, reason=reason, record=_pack(rec))
+
+
+def _pack(rec: dict) -> dict:
+    out = {"action": np.asarray(rec["action"], np.float32).reshape(len(rec["action"]), -1),
+           "eef_pos": np.asarray(rec["eef_pos"], np.float32).reshape(len(rec["eef_pos"]), -1),
+           "noise": np.asarray(rec["noise"], bool)}
+    for name in ("kl", "imagined"):
+        keys = sorted({k for row in rec[name] for k in row})
+        for k in keys:
+            out[f"{name}/{k}"] = np.asarray([row.get(k, np.nan) for row in rec[name]],
+                                            np.float32 if name == "kl" else bool)
+    return out
+
+
+def _write_video(path: str, frames: list) -> None:
+    import imageio.v3 as iio
+
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    iio.imwrite(path, np.stack(frames), plugin="pyav", codec="libx264", fps=20)
+
+
+# ---- worker process side -------------------------------------------------------------------
+_ENVS: dict = {}
+_RUNNERS: dict = {}
+
+
+def init_worker(threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(max(1, threads))
+
+
+def work(job: EpisodeJob) -> EpisodeResult:
+    """Run one job in this process; any error becomes a failed episode with its reason."""
+    try:
+        env = _env(job.task, job.image_size)
+        runner = _runner(job.checkpoint, job.mode)
+        return run_episode(env, runner, job)
+    except Exception as e:  # the evaluation goes on: this episode failed, with why
+        _ENVS.pop((job.task, job.image_size), None)  # the env may be in a broken state
+        reason = f"{type(e).__name__}: {e}"
+        return EpisodeResult(job, False, 0, reason=reason, record={"traceback": traceback.format_exc()})
+
+
+def _env(task: str, image_size: int):
+    from nostra.sim.env import make_env
+
+    key = (task, image_size)
+    if key not in _ENVS:
+        _ENVS[key] = make_env(task, image_size=image_size)
+    return _ENVS[key]
+
+
+def _runner(checkpoint: str, mode: str):
+    from nostra.policies.checkpoint import load_runner
+
+    key = (checkpoint, mode)
+    if key not in _RUNNERS:
+        _RUNNERS[key] = load_runner(checkpoint, **({"adaptive": True} if mode == "adaptive" else {}))
+    return _RUNNERS[key]

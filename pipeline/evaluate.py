@@ -1,0 +1,70 @@
+"""`nostra evaluate [overrides]`: robustness rollouts and offline analyses of trained policies."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import OmegaConf
+
+from pipeline._hydra import run
+
+
+def _rollouts(cfg, e) -> None:
+    from nostra.evaluation import EvalSpec, Variant, evaluate
+
+    variants = [Variant(name, str(v["checkpoint"]), v.get("mode", "closed"))
+                for name, v in OmegaConf.to_container(e.variants, resolve=True).items() if v]  # null: left out
+    spec = EvalSpec(tasks=list(e.tasks), noises=list(e.noises), variants=variants, out_dir=e.out_dir,
+                    episodes=e.episodes, seed=e.seed, horizon=e.horizon,
+                    windows=OmegaConf.to_container(e.windows, resolve=True),
+                    noise_params=OmegaConf.to_container(e.noise_params, resolve=True), workers=e.workers,
+                    image_size=e.image_size, videos_per_cell=e.videos_per_cell, experiment=e.experiment,
+                    run_name=f"evaluate-{'-'.join(e.tasks)}",
+                    params={"profile": cfg.profile.name, "seed": cfg.seed, "task": ",".join(e.tasks),
+                            "table": e.table, "setting": e.setting})
+    table = evaluate(spec)
+    print((Path(e.out_dir) / "success.md").read_text())
+    print(f"{len(table)} cells; results in {e.out_dir}")
+
+
+def _offline(cfg, e) -> None:
+    from nostra.analysis import OfflineSpec, analyse
+    from nostra.data.dataset import split_episodes
+    from nostra.tracking import Tracker
+
+    o = e.offline
+    collections = OmegaConf.to_container(o.collections, resolve=True)
+    _, held_out = split_episodes(cfg.data.store, list(collections), cfg.data.val_fraction, cfg.seed)
+    spec = OfflineSpec(checkpoint=o.checkpoint, store=cfg.data.store, episodes=held_out[: o.episodes],
+                       noise=o.noise, windows=OmegaConf.to_container(o.windows, resolve=True) if o.windows else None,
+                       out_dir=str(Path(e.out_dir) / "offline"), seed=cfg.seed)
+    result = analyse(spec)
+    tracker = Tracker(e.experiment, f"offline-{'-'.join(e.tasks)}", spec.out_dir,
+                      {"checkpoint": o.checkpoint, "noise": o.noise, "episodes": len(spec.episodes),
+                       "profile": cfg.profile.name, "task": ",".join(e.tasks), "seed": cfg.seed, "model": "nostra",
+                       "setting": str(OmegaConf.to_container(o.setting, resolve=True)
+                                      if OmegaConf.is_config(o.setting) else o.setting)})
+    metrics = {f"kl_nats/{m}": v for m, v in result["kl_nats"].items()}
+    metrics.update({f"action_mse/{v}": x for v, x in result["action_mse"].items()})
+    if "detect" in result:
+        metrics.update({"detect/precision": result["detect"]["all"]["precision"],
+                        "detect/recall": result["detect"]["all"]["recall"]})
+        metrics.update({f"detect/{k}/{m}": s[k] for m, s in result["detect"].items() for k in ("precision", "recall")})
+    tracker.log_metrics(metrics)
+    for name in ("offline.md", "kl_episode.png"):
+        if (Path(spec.out_dir) / name).is_file():
+            tracker.log_artifact(Path(spec.out_dir) / name)
+    print((Path(spec.out_dir) / "offline.md").read_text())
+    print(tracker.finish())
+
+
+def _app(cfg) -> None:
+    e = cfg.evaluate
+    if e.rollouts:
+        _rollouts(cfg, e)
+    if e.offline.enabled:
+        _offline(cfg, e)
+
+
+def main(argv: list[str]) -> int:
+    return run("evaluate", argv, _app)
