@@ -116,14 +116,15 @@ def run_jobs(jobs: list[EpisodeJob], workers: int, progress: bool = True) -> lis
     retried once in a fresh pool, then count as failed with the reason; nothing aborts the run."""
     bar = tqdm(total=len(jobs), desc="rollouts", disable=not progress)
     results: dict[int, EpisodeResult] = {}
+    # batch-1 inference needs one thread; more threads spin (OpenMP) and starve the CPU renderer
+    threads = max(1, (os.cpu_count() or 1) // (2 * max(1, workers)))
     if workers <= 1:
-        init_worker(os.cpu_count() or 1)
+        init_worker(threads)
         for i, job in enumerate(jobs):
             results[i] = work(job)
             bar.update()
         bar.close()
         return [results[i] for i in range(len(jobs))]
-    threads = max(1, (os.cpu_count() or 1) // workers)  # workers must not oversubscribe the cores
     pending, crashes = dict(enumerate(jobs)), Counter()
     while pending:
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=init_worker,

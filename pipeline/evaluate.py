@@ -16,7 +16,7 @@ def _rollouts(cfg, e) -> None:
                 for name, v in OmegaConf.to_container(e.variants, resolve=True).items() if v]  # null: left out
     spec = EvalSpec(tasks=list(e.tasks), noises=list(e.noises), variants=variants, out_dir=e.out_dir,
                     episodes=e.episodes, seed=e.seed, horizon=e.horizon,
-                    windows=OmegaConf.to_container(e.windows, resolve=True),
+                    windows=_windows(cfg, e),
                     noise_params=OmegaConf.to_container(e.noise_params, resolve=True), workers=e.workers,
                     image_size=e.image_size, videos_per_cell=e.videos_per_cell, experiment=e.experiment,
                     run_name=f"evaluate-{'-'.join(e.tasks)}",
@@ -25,6 +25,14 @@ def _rollouts(cfg, e) -> None:
     table = evaluate(spec)
     print((Path(e.out_dir) / "success.md").read_text())
     print(f"{len(table)} cells; results in {e.out_dir}")
+
+
+def _windows(cfg, e) -> dict:
+    """evaluate.windows, else the task config's noise_windows, else the registry's (paper) ones."""
+    windows = OmegaConf.to_container(e.windows, resolve=True) or {}
+    if cfg.task.name not in windows and cfg.task.get("noise_windows"):
+        windows[cfg.task.name] = OmegaConf.to_container(cfg.task.noise_windows, resolve=True)
+    return windows
 
 
 def _offline(cfg, e) -> None:
@@ -42,8 +50,7 @@ def _offline(cfg, e) -> None:
     tracker = Tracker(e.experiment, f"offline-{'-'.join(e.tasks)}", spec.out_dir,
                       {"checkpoint": o.checkpoint, "noise": o.noise, "episodes": len(spec.episodes),
                        "profile": cfg.profile.name, "task": ",".join(e.tasks), "seed": cfg.seed, "model": "nostra",
-                       "setting": str(OmegaConf.to_container(o.setting, resolve=True)
-                                      if OmegaConf.is_config(o.setting) else o.setting)})
+                       "setting": o.setting})
     metrics = {f"kl_nats/{m}": v for m, v in result["kl_nats"].items()}
     metrics.update({f"action_mse/{v}": x for v, x in result["action_mse"].items()})
     if "detect" in result:
