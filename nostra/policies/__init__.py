@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from nostra.policies.diffusion import DiffusionNet, DiffusionPolicy, DiffusionRunner
 from nostra.policies.lstm import LSTMNet, LSTMPolicy, LSTMRunner
 from nostra.policies.nostra import NostraNet, NostraPolicy, NostraRunner
 from nostra.policies.rssm import RSSMNet, RSSMPolicy, RSSMRunner
@@ -10,6 +11,7 @@ POLICIES = {
     "nostra": (NostraPolicy, NostraRunner),
     "rssm": (RSSMPolicy, RSSMRunner),
     "lstm": (LSTMPolicy, LSTMRunner),
+    "diffusion": (DiffusionPolicy, DiffusionRunner),
 }
 
 
@@ -28,4 +30,5 @@ def runner_class(name: str):
 
 
 __all__ = ["POLICIES", "policy_module", "runner_class", "NostraNet", "NostraPolicy", "NostraRunner",
-           "RSSMNet", "RSSMPolicy", "RSSMRunner", "LSTMNet", "LSTMPolicy", "LSTMRunner"]
+           "RSSMNet", "RSSMPolicy", "RSSMRunner", "LSTMNet", "LSTMPolicy", "LSTMRunner",
+           "DiffusionNet", "DiffusionPolicy", "DiffusionRunner"]

@@ -49,7 +49,9 @@ def load_net(path, expected_policy: str | None = None, expected_modalities: Iter
         raise CheckpointError(f"{path} was trained on modalities {sorted(names)}, "
                               f"but {sorted(expected_modalities)} were given")
     net = POLICIES[policy][0].net_cls(modalities, meta["action_dim"], **meta["net"])
-    weights = {k[len("net."):]: v for k, v in state.items() if k.startswith("net.")}
+    # a policy that trains with an EMA copy (diffusion's AveragedModel ``ema_net``) deploys the averaged weights
+    prefix = "ema_net.module." if any(k.startswith("ema_net.module.") for k in state) else "net."
+    weights = {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
     try:
         net.load_state_dict(weights)
     except RuntimeError as e:
