@@ -2,7 +2,7 @@
 84x84 RGB-D, a NOSTRA policy with the light encoder and AdaMLI on; untrained weights, so every
 episode runs its full horizon). Target: a speed-up of at least 1.7x with 2 workers.
 
-Usage: python bench/rollouts.py [--episodes 12] [--horizon 150]. Last line: JSON."""
+Usage: python bench/rollouts.py [--episodes 24] [--horizon 150]. Last line: JSON."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ def untrained_checkpoint(path: Path) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--episodes", type=int, default=12)
+    ap.add_argument("--episodes", type=int, default=24)
     ap.add_argument("--horizon", type=int, default=150)
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp())

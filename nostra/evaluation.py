@@ -128,7 +128,7 @@ def run_jobs(jobs: list[EpisodeJob], workers: int, progress: bool = True) -> lis
     pending, crashes = dict(enumerate(jobs)), Counter()
     while pending:
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=init_worker,
-                                 initargs=(threads,)) as pool:
+                                 initargs=(threads, max(1, (os.cpu_count() or 1) // workers))) as pool:
             futures = {pool.submit(work, job): i for i, job in pending.items()}
             for f in as_completed(futures):
                 i = futures[f]

@@ -117,8 +117,8 @@ def table_settings(cells: pd.DataFrame, table: str, rows: list[str], title: str,
 
 def table_kl(df: pd.DataFrame, title: str):
     """Table 3: mean per-modality KL (nats) by training data (offline runs' `setting`)."""
-    cols = [c for c in df.columns if c.startswith("metrics.kl_nats/")]
     recs = [r for r in df.to_dict("records") if str(r.get("tags.mlflow.runName", "")).startswith("offline")]
+    cols = [c for c in df.columns if c.startswith("metrics.kl_nats/") and any(_present(r.get(c)) for r in recs)]
     if not cols or not recs:
         return title, pd.DataFrame([[DASH, DASH]], columns=["Input", "(no runs)"]), \
             f"{DASH}: no offline analysis run logged kl_nats/<modality>"

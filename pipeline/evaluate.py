@@ -45,7 +45,8 @@ def _offline(cfg, e) -> None:
     _, held_out = split_episodes(cfg.data.store, list(collections), cfg.data.val_fraction, cfg.seed)
     spec = OfflineSpec(checkpoint=o.checkpoint, store=cfg.data.store, episodes=held_out[: o.episodes],
                        noise=o.noise, windows=OmegaConf.to_container(o.windows, resolve=True) if o.windows else None,
-                       out_dir=str(Path(e.out_dir) / "offline"), seed=cfg.seed)
+                       out_dir=str(Path(e.out_dir) / "offline"), seed=cfg.seed,
+                       noise_params=OmegaConf.to_container(e.noise_params, resolve=True))
     result = analyse(spec)
     tracker = Tracker(e.experiment, f"offline-{'-'.join(e.tasks)}", spec.out_dir,
                       {"checkpoint": o.checkpoint, "noise": o.noise, "episodes": len(spec.episodes),

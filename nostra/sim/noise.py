@@ -126,6 +126,9 @@ class ProprioZero(Injector):
 
 
 def _suite(name: str, params: dict) -> list[Injector]:
+    unknown = set(params) - {"name", "mask_size", "jitter_std", "texture"}
+    if unknown:
+        raise ValueError(f"unknown noise parameters {sorted(unknown)}; valid: mask_size, jitter_std, texture")
     mask = params.get("mask_size", 50 / 84)
     rgb = Mask(RGB_KEYS, mask)
     depth = Mask(DEPTH_KEYS, mask)

@@ -105,10 +105,12 @@ _ENVS: dict = {}
 _RUNNERS: dict = {}
 
 
-def init_worker(threads: int) -> None:
+def init_worker(threads: int, render_threads: int | None = None) -> None:
     import torch
 
     torch.set_num_threads(max(1, threads))
+    if render_threads:  # Mesa's llvmpipe renders with one thread per core unless told otherwise
+        os.environ["LP_NUM_THREADS"] = str(render_threads)
 
 
 def work(job: EpisodeJob) -> EpisodeResult:
