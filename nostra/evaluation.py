@@ -29,6 +29,7 @@ class Variant:
     name: str          # an id used in metric names, e.g. nostra_mli
     checkpoint: str
     mode: str = "closed"  # closed | oracle (MLI / LI knowing the window) | adaptive (AdaMLI)
+    rnn_horizon: int | None = None  # override the checkpoint's state reset period at rollout (0: never)
 
     @property
     def label(self) -> str:
@@ -53,6 +54,7 @@ class EvalSpec:
     experiment: str = "nostra"
     run_name: str = "evaluate"
     params: dict = field(default_factory=dict)
+    checkpoint: str = "last"   # which checkpoint of each run the variants use (the tables say it)
 
 
 def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -107,7 +109,7 @@ def jobs_of(spec: EvalSpec) -> list[EpisodeJob]:
                              if i < spec.videos_per_cell else None)
                     jobs.append(EpisodeJob(t.name, noise, v.name, v.checkpoint, v.mode, spec.seed + i,
                                            spec.horizon or t.horizon, windows, dict(spec.noise_params),
-                                           spec.image_size, video))
+                                           spec.image_size, video, v.rnn_horizon))
     return jobs
 
 
@@ -159,9 +161,11 @@ def summarize(results: list[EpisodeResult], spec: EvalSpec) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def markdown_table(table: pd.DataFrame) -> str:
+def markdown_table(table: pd.DataFrame, checkpoint: str = "last") -> str:
     """Paper Table 1 layout: one row per method, one column per task x noise; success % [95% CI]."""
-    lines = []
+    lines = [f"Checkpoint: **{checkpoint}** of each training run "
+             + ("(the best by in-training rollout success)." if checkpoint == "best" else
+                "(the end of training)." if checkpoint == "last" else "."), ""]
     for task, t in table.groupby("task", sort=False):
         noises = list(dict.fromkeys(t["noise"]))
         lines += [f"### {task}", "", "| Method | " + " | ".join(noises) + " |", "|---" * (len(noises) + 1) + "|"]
@@ -198,7 +202,7 @@ def evaluate(spec: EvalSpec) -> pd.DataFrame:
     save_records(results, out)
     table = summarize(results, spec)
     table.to_csv(out / "success.csv", index=False)
-    (out / "success.md").write_text(markdown_table(table))
+    (out / "success.md").write_text(markdown_table(table, spec.checkpoint))
     trajectory_figure(results, spec, out / "trajectories.png")
     tracker = Tracker(spec.experiment, spec.run_name, out,
                       {"tasks": ",".join(spec.tasks), "noises": ",".join(spec.noises), "episodes": spec.episodes,

@@ -8,6 +8,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from nostra.data.store import Store
 from nostra.policies import policy_module
 from nostra.policies.checkpoint import load_net
 from nostra.tracking import Tracker, TrackingLogger
+from nostra.training_rollouts import RolloutCallback, RolloutConfig
 
 STAGES = ("pretrain", "finetune", "cotrain")
 
@@ -37,6 +39,8 @@ class TrainSpec:
     seq_len: int = 16
     batch_size: int = 32
     max_steps: int = 1000
+    max_minutes: float | None = None  # wall-clock budget of the whole fit (Lightning's max_time); None: steps only
+    keep_every: int | None = None    # keep checkpoints/step=<n>.ckpt every this many steps (None: last only)
     num_workers: int = 2
     val_fraction: float = 0.1
     val_every: int = 500
@@ -53,6 +57,7 @@ class TrainSpec:
     params: dict = field(default_factory=dict)  # extra MLflow params (task, profile, ...)
     parent_run_id: str | None = None
     trainer: dict = field(default_factory=dict)  # extra lightning.Trainer kwargs (devices, strategy, ...)
+    rollout: RolloutConfig | None = None  # in-training rollouts and the best checkpoint (None: off)
 
 
 def read_manifest(path: str | os.PathLike, store: Store) -> tuple[list[tuple[str, int]], str]:
@@ -125,6 +130,7 @@ def train(spec: TrainSpec) -> dict:
         raise ValueError(f"unknown training stage {spec.stage!r}; valid: {', '.join(STAGES)}")
     if spec.stage == "finetune" and not spec.init_from:
         raise ValueError("stage=finetune needs a pretrained checkpoint (train.init_from=<path>)")
+    start = time.time()
     L.seed_everything(spec.seed, workers=True, verbose=False)
     store = Store(spec.store)
     train_eps, val_eps, weights, manifest_hash = _episodes(spec, store)
@@ -144,9 +150,19 @@ def train(spec: TrainSpec) -> dict:
               "init_from": spec.init_from, **spec.params}
     tracker = Tracker(spec.experiment, spec.run_name or f"{spec.stage}-{spec.policy}", out, params,
                       tags={"stage": spec.stage}, parent_run_id=spec.parent_run_id)
-    ckpt = ModelCheckpoint(dirpath=out / "checkpoints", save_last=True, every_n_train_steps=spec.ckpt_every,
-                           save_top_k=0)
-    trainer = L.Trainer(max_steps=spec.max_steps, logger=TrackingLogger(tracker), callbacks=[ckpt],
+    callbacks = [ModelCheckpoint(dirpath=out / "checkpoints", save_last=True, every_n_train_steps=spec.ckpt_every,
+                                 save_top_k=0)]
+    if spec.keep_every:
+        callbacks.append(ModelCheckpoint(dirpath=out / "checkpoints", filename="step={step}", auto_insert_metric_name=False,
+                                         every_n_train_steps=spec.keep_every, save_top_k=-1))
+    rollouts = None
+    if spec.rollout is not None and (spec.rollout.every or spec.rollout.final_episodes):
+        from nostra.policies import runner_class
+
+        rollouts = RolloutCallback(spec.rollout, spec.policy, out, runner_class(spec.policy).can_imagine)
+        callbacks.append(rollouts)
+    max_time = {"minutes": spec.max_minutes} if spec.max_minutes else None
+    trainer = L.Trainer(max_steps=spec.max_steps, max_time=max_time, logger=TrackingLogger(tracker), callbacks=callbacks,
                         enable_progress_bar=spec.progress, enable_model_summary=False,
                         log_every_n_steps=max(1, min(10, spec.max_steps // 3)),
                         val_check_interval=min(spec.val_every, spec.max_steps) if val_loader else None,
@@ -164,7 +180,11 @@ def train(spec: TrainSpec) -> dict:
         tracker.log_artifact(out / "metrics.jsonl")
         summary = tracker.finish(status)
     result = {"checkpoint": str(final), "run_id": tracker.run_id, "tracking": summary, "manifest_hash": manifest_hash,
-              "steps": int(trainer.global_step), "train_episodes": len(train_eps), "val_episodes": len(val_eps)}
+              "steps": int(trainer.global_step), "train_episodes": len(train_eps), "val_episodes": len(val_eps),
+              "wall_seconds": round(time.time() - start, 1)}
+    if rollouts is not None:
+        result["rollouts"] = rollouts.summary()
+        result["best_checkpoint"] = str(out / "checkpoints" / "best.ckpt")
     (out / "run.json").write_text(json.dumps(result, indent=2))
     print(summary)
     return result

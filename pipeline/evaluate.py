@@ -11,17 +11,20 @@ from pipeline._hydra import run
 
 def _rollouts(cfg, e) -> None:
     from nostra.evaluation import EvalSpec, Variant, evaluate
+    from nostra.policies.checkpoint import select_checkpoint
 
-    variants = [Variant(name, str(v["checkpoint"]), v.get("mode", "closed"))
+    variants = [Variant(name, select_checkpoint(v["checkpoint"], e.checkpoint), v.get("mode", "closed"),
+                        v.get("rnn_horizon"))
                 for name, v in OmegaConf.to_container(e.variants, resolve=True).items() if v]  # null: left out
     spec = EvalSpec(tasks=list(e.tasks), noises=list(e.noises), variants=variants, out_dir=e.out_dir,
                     episodes=e.episodes, seed=e.seed, horizon=e.horizon,
                     windows=_windows(cfg, e),
                     noise_params=OmegaConf.to_container(e.noise_params, resolve=True), workers=e.workers,
                     image_size=e.image_size, videos_per_cell=e.videos_per_cell, experiment=e.experiment,
+                    checkpoint=str(e.checkpoint),
                     run_name=f"evaluate-{'-'.join(e.tasks)}",
                     params={"profile": cfg.profile.name, "seed": cfg.seed, "task": ",".join(e.tasks),
-                            "table": e.table, "setting": e.setting})
+                            "table": e.table, "setting": e.setting, "checkpoint": str(e.checkpoint)})
     table = evaluate(spec)
     print((Path(e.out_dir) / "success.md").read_text())
     print(f"{len(table)} cells; results in {e.out_dir}")

@@ -9,6 +9,7 @@ from pipeline._hydra import run
 
 def _app(cfg) -> None:
     from nostra.training import TrainSpec, train
+    from nostra.training_rollouts import RolloutConfig
 
     t = cfg.train
     collections = OmegaConf.to_container(t.collections, resolve=True)
@@ -22,13 +23,26 @@ def _app(cfg) -> None:
         policy=model["policy"], store=cfg.data.store, collections=list(collections),
         keys=list(t.obs_keys), out_dir=t.out_dir, stage=t.stage, net=model.get("net", {}), optim=model.get("optim", {}),
         loss=model.get("loss", {}), seq_len=cfg.data.seq_len, batch_size=cfg.data.batch_size, max_steps=t.max_steps,
+        max_minutes=t.max_minutes, keep_every=t.keep_every,
         num_workers=cfg.data.workers, val_fraction=cfg.data.val_fraction, val_every=t.val_every,
         ckpt_every=t.ckpt_every, init_from=t.init_from, num_demos=t.num_demos, manifest=t.manifest,
         cotrain_ratio=t.cotrain_ratio, seed=cfg.seed, resume=t.resume, progress=t.progress,
         experiment=t.experiment, run_name=t.run_name, parent_run_id=t.parent_run_id,
         params={"task": cfg.task.name, "profile": cfg.profile.name},
-        trainer=OmegaConf.to_container(t.trainer, resolve=True))
+        trainer=OmegaConf.to_container(t.trainer, resolve=True), rollout=_rollout(cfg, RolloutConfig))
     train(spec)
+
+
+def _rollout(cfg, config_cls):
+    """train.rollout -> the in-training rollout config (windows and noise as `nostra evaluate` uses)."""
+    r = OmegaConf.to_container(cfg.train.rollout, resolve=True)
+    if not r.pop("enabled"):
+        return None
+    windows = OmegaConf.to_container(cfg.evaluate.windows, resolve=True) or {}
+    if cfg.task.name not in windows and cfg.task.get("noise_windows"):
+        windows[cfg.task.name] = OmegaConf.to_container(cfg.task.noise_windows, resolve=True)
+    return config_cls(task=cfg.task.name, windows=windows, noise_params=OmegaConf.to_container(cfg.noise, resolve=True),
+                      image_size=cfg.profile.image_size, **r)
 
 
 def main(argv: list[str]) -> int:

@@ -27,13 +27,15 @@ class PolicyNet(nn.Module):
     policy: str = ""
 
     def __init__(self, modalities, action_dim: int, embed_dim: int = 128, encoder_hidden=(256,),
-                 image_encoder: str = "light", image_norm: str = "group"):
+                 image_encoder: str = "light", image_norm: str = "group", image_aug: str = "none",
+                 aug_pixels: int = 8, keypoints: int = 32):
         super().__init__()
         self.modalities: list[Modality] = as_modalities(modalities)
         self.action_dim = int(action_dim)
         self.embed_dim = embed_dim
         self.encoders = nn.ModuleDict({
-            m.name: ModalityEncoder(m, image_encoder, embed_dim, list(encoder_hidden), image_norm)
+            m.name: ModalityEncoder(m, image_encoder, embed_dim, list(encoder_hidden), image_norm, image_aug,
+                                    aug_pixels, keypoints)
             for m in self.modalities
         })
         lowdim = {m.name: m.shape[0] for m in self.modalities if m.kind == "lowdim"}

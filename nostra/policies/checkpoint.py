@@ -65,3 +65,29 @@ def load_runner(path, modalities: Iterable[str] | None = None, **runner_kwargs):
 
     net = load_net(path, expected_modalities=modalities)
     return runner_class(net.policy)(net, **runner_kwargs)
+
+
+CHOICES = "best | last | step=<n>"
+
+
+def select_checkpoint(path, which: str = "last") -> str:
+    """The checkpoint of a training run that ``which`` names: ``last`` is ``path`` itself (the run's
+    final ``policy.ckpt``); ``best`` the run's ``checkpoints/best.ckpt`` (best in-training rollout
+    success); ``step=<n>`` the ``checkpoints/step=<n>.ckpt`` kept at that step."""
+    path, which = Path(path), str(which)
+    run = path if path.is_dir() else path.parent
+    if which == "last":
+        return str(run / "policy.ckpt" if path.is_dir() else path)
+    if which == "best":
+        best = run / "checkpoints" / "best.ckpt"
+        if not best.is_file():
+            raise FileNotFoundError(f"checkpoint=best: {best} does not exist; the run in {run} was trained without "
+                                    "in-training rollouts (train.rollout); use checkpoint=last or a step")
+        return str(best)
+    if which.startswith("step=") and which[5:].isdigit():
+        step = run / "checkpoints" / f"{which}.ckpt"
+        if not step.is_file():
+            kept = sorted(p.stem for p in (run / "checkpoints").glob("step=*.ckpt"))
+            raise FileNotFoundError(f"checkpoint={which}: {step} does not exist; {run} keeps {kept or 'no step checkpoints'}")
+        return str(step)
+    raise ValueError(f"unknown checkpoint choice {which!r}; valid: {CHOICES}")

@@ -26,8 +26,11 @@ class StateSpaceNet(PolicyNet):
     def __init__(self, modalities, action_dim: int, latent_dim: int = 40, deter: int = 256, hidden: int = 256,
                  min_std: float = 0.1, fusion_embed: int = 256, fusion_heads: int = 2, fusion_blocks: int = 1,
                  fusion_out: int = 256, decoder_hidden=(400, 400), head: str = "gaussian", action_std: float = 1.0,
-                 gmm_modes: int = 5, **encoder_kwargs):
+                 gmm_modes: int = 5, rnn_horizon: int = 0, **encoder_kwargs):
         super().__init__(modalities, action_dim, **encoder_kwargs)
+        if rnn_horizon < 0:
+            raise ValueError(f"rnn_horizon must be >= 0 (0: carry the state all episode), got {rnn_horizon}")
+        self.rnn_horizon = int(rnn_horizon)  # runner: restart the filter every this many steps (0: never)
         names = self.modality_names
         self.groups: dict[str, list[str]] = {JOINT: names} if self.joint_latent else {n: [n] for n in names}
         per_group = len(names) if self.joint_latent else 1
@@ -94,13 +97,15 @@ class StateSpaceRunner(Runner):
     can_imagine = True
 
     def __init__(self, net: StateSpaceNet, device: str = "cpu", adaptive: bool = False,
-                 adamli: AdaMLIConfig | dict | None = None):
+                 adamli: AdaMLIConfig | dict | None = None, rnn_horizon: int | None = None):
         cfg = adamli if isinstance(adamli, AdaMLIConfig) else AdaMLIConfig(**(adamli or {}))
         self.detector = AdaMLI(list(net.groups), cfg) if adaptive else None
+        self.rnn_horizon = net.rnn_horizon if rnn_horizon is None else int(rnn_horizon)
         super().__init__(net, device)
 
     def reset(self) -> None:
         self.h, self.z = self.net.core.initial(1, self.device)
+        self.t = 0
         if self.detector is not None:
             self.detector.reset()
 
@@ -108,6 +113,9 @@ class StateSpaceRunner(Runner):
     def step(self, obs: dict[str, np.ndarray], imagine: Iterable[str] | None = None):
         net, core = self.net, self.net.core
         forced = self._check_imagine(imagine)
+        if self.rnn_horizon and self.t and self.t % self.rnn_horizon == 0:
+            self.h, self.z = core.initial(1, self.device)  # restart the filter; AdaMLI keeps its windows
+        self.t += 1
         emb = net.group_embeds(net.encode(self._to_tensors(obs)))
         h, prior = core.transition(self.h, self.z)
         post = core.posteriors(h, emb)

@@ -26,7 +26,7 @@ import numpy as np
 
 from nostra.sim import _gl, scene
 from nostra.sim.tasks import CAMERAS, CONTROL_FREQ, ROBOT, TaskSpec, get_task
-from nostra.sim.variations import Variation
+from nostra.sim.variations import Variation, scale_range
 
 LOWDIM_KEYS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos")
 DEPTH_KEY = "agentview_depth"
@@ -98,6 +98,9 @@ class SimEnv:
                 raise _gl.render_error(exc) from exc
             raise
         self.raw._xml_processors.append(self._scale_xml)
+        for sampler in self.placement_samplers():  # the task's own range (D1 variants), before it is recorded
+            sampler.x_range = scale_range(sampler.x_range, spec.placement_scale)
+            sampler.y_range = scale_range(sampler.y_range, spec.placement_scale)
         self._on_new_sim()
         self.seed, self.steps, self._placements = self._build_seed, 0, {}
 

@@ -308,7 +308,7 @@ class Expert:
 
 
 def make_expert(env) -> Expert:
-    name = env.spec.name
+    name = env.spec.env_name  # variants of a task (LiftD1) share its script
     if name not in SCRIPTS:
         raise ValueError(f"no scripted expert for task {name!r}; tasks with experts: {', '.join(SCRIPTS)}")
     return Expert(env, SCRIPTS[name])

@@ -10,7 +10,11 @@ Layout written (robomimic's, plus the episode metadata of the contract as demo a
       obs/<key>         observation before each action;  next_obs/<key>: after it
     mask/train, mask/valid   demo names (byte strings)
 
-Episodes whose expert fails are dropped and counted. The file is written under a temporary name
+Noise-injected demonstrations (``action_noise`` > 0): Gaussian noise is added to the action the
+robot executes (clipped to [-1, 1]), so demos visit states slightly off the expert's path;
+``record="executed"`` stores the noisy executed action (MimicGen), ``record="expert"`` the expert's
+clean action at those states, i.e. its correction (DART). Episodes whose expert fails are dropped
+and counted. The file is written under a temporary name
 and renamed when complete, so an interrupted run leaves no partial file behind.
 """
 
@@ -34,6 +38,7 @@ from nostra.sim.experts import make_expert
 from nostra.sim.tasks import get_task
 from nostra.sim.variations import Variation, sample_variation
 
+RECORDS = ("executed", "expert")  # which action a noise-injected demo stores
 META_JSON = ("objects", "camera_pose", "object_placements", "variation")  # nested values: JSON strings
 
 
@@ -52,6 +57,8 @@ class GenerateConfig:
     max_attempts_factor: float = 2.0  # give up after episodes * factor attempts
     valid_fraction: float = 0.1
     variation: Mapping = field(default_factory=dict)  # ranges, see variations.RANGE_KEYS
+    action_noise: float = 0.0  # std of the Gaussian noise on the executed action
+    record: str = "executed"  # which action the demo stores: executed | expert
 
     def __post_init__(self):
         get_task(self.task)  # unknown task -> ValueError listing the valid ones
@@ -60,24 +67,33 @@ class GenerateConfig:
         if not 0.0 <= self.valid_fraction < 1.0:
             raise ValueError(f"valid_fraction must be in [0, 1), got {self.valid_fraction}")
         sample_variation(self.variation, np.random.default_rng(0))  # bad ranges fail before any work
+        if self.record not in RECORDS:
+            raise ValueError(f"generate.record={self.record!r} unknown; valid: {', '.join(RECORDS)}")
+        if not self.action_noise >= 0:
+            raise ValueError(f"generate.action_noise must be >= 0, got {self.action_noise}")
 
 
 # ---- one episode -------------------------------------------------------------------------------
 
 def run_episode(env, expert, seed: int, variation: Variation | None = None, max_steps: int | None = None,
-                steps_after_success: int = 10) -> dict:
-    """Roll the expert out; stop `steps_after_success` steps after the task first succeeds."""
+                steps_after_success: int = 10, action_noise: float = 0.0, record: str = "executed") -> dict:
+    """Roll the expert out; stop `steps_after_success` steps after the task first succeeds.
+    With `action_noise`, the executed action is perturbed (seeded by the episode's seed)."""
     obs = env.reset(seed=seed, variation=variation)
     expert.reset()
+    rng = np.random.default_rng([seed, 11])
     max_steps = max_steps or env.spec.horizon
     frames, states, actions, rewards = [obs], [], [], []
     succeeded_at = None
     for t in range(max_steps):
         states.append(env.sim_state())
-        action = expert.act(obs)
-        obs, reward, done, info = env.step(action)
+        action = np.asarray(expert.act(obs), dtype=np.float64)
+        executed = action
+        if action_noise > 0:
+            executed = np.clip(action + rng.normal(0.0, action_noise, action.shape), -1.0, 1.0)
+        obs, reward, done, info = env.step(executed)
         frames.append(obs)
-        actions.append(action)
+        actions.append(executed if record == "executed" else action)
         rewards.append(reward)
         if info["success"] and succeeded_at is None:
             succeeded_at = t
@@ -109,7 +125,7 @@ def _episode_job(job: tuple[int, dict]) -> dict:
     seed, variation = job
     cfg = _WORKER["cfg"]
     return run_episode(_WORKER["env"], _WORKER["expert"], seed, Variation.from_dict(variation), cfg.max_steps,
-                       cfg.steps_after_success)
+                       cfg.steps_after_success, cfg.action_noise, cfg.record)
 
 
 def _jobs(cfg: GenerateConfig) -> Iterator[tuple[int, dict]]:

@@ -116,6 +116,16 @@ class TableTexture(Injector):
 
 
 @dataclass
+class Blackout(Injector):
+    """Every camera (RGB and depth) reads black / zero: the control with no vision at all."""
+
+    keys: tuple[str, ...] = RGB_KEYS + DEPTH_KEYS
+
+    def corrupt(self, obs):
+        return {k: (np.zeros_like(v) if k in self.keys else v) for k, v in obs.items()}
+
+
+@dataclass
 class ProprioZero(Injector):
     """Proprioception reads zero (sensor failure)."""
 
@@ -142,10 +152,12 @@ def _suite(name: str, params: dict) -> list[Injector]:
         "rgb": [rgb],
         "rgbd": [rgb, depth],
         "all": [rgb, depth, ProprioZero()],
+        "blind": [Blackout()],
     }[name]
 
 
-NOISES = ("none", "mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero", "rgb", "rgbd", "all")
+NOISES = ("none", "mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero", "rgb", "rgbd", "all", "blind")
+WHOLE_EPISODE = ("blind",)  # noises that ignore the windows: active from the first step to the last
 
 
 def check_noise(name: str) -> str:
@@ -164,6 +176,8 @@ class NoiseSchedule:
         for a, b in self.windows:
             if not 0 < a < b:
                 raise ValueError(f"noise window [{a}, {b}) must satisfy 0 < start < end")
+        if name in WHOLE_EPISODE:  # the blind control: no camera at any step (its injector needs no set-up)
+            self.windows = [(0, 2**62)]
 
     @property
     def keys(self) -> set[str]:

@@ -26,6 +26,7 @@ class EpisodeJob:
     noise_params: dict = field(default_factory=dict)
     image_size: int = 84
     video_path: str | None = None
+    rnn_horizon: int | None = None  # the runner's state reset period (None: the checkpoint's)
 
 
 @dataclass
@@ -117,7 +118,7 @@ def work(job: EpisodeJob) -> EpisodeResult:
     """Run one job in this process; any error becomes a failed episode with its reason."""
     try:
         env = _env(job.task, job.image_size)
-        runner = _runner(job.checkpoint, job.mode)
+        runner = _runner(job.checkpoint, job.mode, job.rnn_horizon)
         return run_episode(env, runner, job)
     except Exception as e:  # the evaluation goes on: this episode failed, with why
         _ENVS.pop((job.task, job.image_size), None)  # the env may be in a broken state
@@ -134,10 +135,13 @@ def _env(task: str, image_size: int):
     return _ENVS[key]
 
 
-def _runner(checkpoint: str, mode: str):
+def _runner(checkpoint: str, mode: str, rnn_horizon: int | None = None):
     from nostra.policies.checkpoint import load_runner
 
-    key = (checkpoint, mode)
+    key = (checkpoint, mode, rnn_horizon)
     if key not in _RUNNERS:
-        _RUNNERS[key] = load_runner(checkpoint, **({"adaptive": True} if mode == "adaptive" else {}))
+        kwargs = {"adaptive": True} if mode == "adaptive" else {}
+        if rnn_horizon is not None:
+            kwargs["rnn_horizon"] = rnn_horizon
+        _RUNNERS[key] = load_runner(checkpoint, **kwargs)
     return _RUNNERS[key]

@@ -38,6 +38,7 @@ class TaskSpec:
     noise_windows: tuple[tuple[int, int], ...] = DEFAULT_WINDOWS
     horizon: int = 600
     env_kwargs: dict = field(default_factory=dict)
+    placement_scale: float = 1.0  # the task's own object placement range, as a factor of robosuite's
     success: Callable = robosuite_success
 
     @property
@@ -75,6 +76,18 @@ register_task(TaskSpec(
     name="Stack", env_name="Stack", language="stack the red cube on the green cube", skill="stack",
     bodies={"red_cube": "cubeA_main", "green_cube": "cubeB_main"},
     recolor_bodies=("cubeA_main",), rescale_bodies=("cubeA_main", "cubeB_main"), noise_windows=STACK_WINDOWS,
+))
+# D1-like variants (MimicGen's D1: objects spread over a wide area, random yaw), where the object's
+# position must be seen: Lift's cube over 0.3 m x 0.3 m (robosuite: 0.06 m x 0.06 m), Stack's cubes
+# over 0.4 m x 0.4 m (robosuite: 0.16 m x 0.16 m). Both already draw the yaw uniformly.
+register_task(TaskSpec(
+    name="LiftD1", env_name="Lift", language="lift the red cube", skill="pick",
+    bodies={"cube": "cube_main"}, recolor_bodies=("cube_main",), rescale_bodies=("cube_main",), placement_scale=5.0,
+))
+register_task(TaskSpec(
+    name="StackD1", env_name="Stack", language="stack the red cube on the green cube", skill="stack",
+    bodies={"red_cube": "cubeA_main", "green_cube": "cubeB_main"}, recolor_bodies=("cubeA_main",),
+    rescale_bodies=("cubeA_main", "cubeB_main"), noise_windows=STACK_WINDOWS, placement_scale=2.5,
 ))
 register_task(TaskSpec(
     name="PickPlaceCan", env_name="PickPlaceCan", language="pick up the can and place it in the bin",

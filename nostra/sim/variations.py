@@ -72,8 +72,8 @@ class Variation:
             for body in env.spec.recolor_bodies:
                 scene.set_geom_color(model, scene.body_geoms(model, scene.body_id(model, body)), self.object_rgba)
         for sampler in env.placement_samplers():
-            sampler.x_range = _scale_range(sampler.x_range, self.placement_scale)
-            sampler.y_range = _scale_range(sampler.y_range, self.placement_scale)
+            sampler.x_range = scale_range(sampler.x_range, self.placement_scale)
+            sampler.y_range = scale_range(sampler.y_range, self.placement_scale)
 
 
 def occluded_camera_pose(env) -> tuple[np.ndarray, np.ndarray]:
@@ -105,7 +105,7 @@ def _vec(v, n: int, name: str) -> tuple:
     return tuple(round(float(x), 6) for x in arr)
 
 
-def _scale_range(rng, s: float) -> tuple[float, float]:
+def scale_range(rng, s: float) -> tuple[float, float]:
     lo, hi = float(rng[0]), float(rng[1])
     mid, half = (lo + hi) / 2, (hi - lo) / 2 * s
     return (mid - half, mid + half)

@@ -1,0 +1,94 @@
+"""Training throughput of BC-LSTM, BC-RSSM and BC-NOSTRA at a profile's shapes, in one run.
+
+Each policy takes optimiser steps (forward, backward, Adam) on random batches shaped like the
+profile's (batch x sequence, its observation keys and image size, its encoder and augmentation);
+no data loading, so this is the model's own cost. One JSON line per policy with samples (windows)
+and frames per second, then a last line with the NOSTRA / BC-LSTM time ratio per sample (the
+issue's bound: NOSTRA's per-step GRU loop must not make it more than 1.5x slower).
+
+    python bench/train_step.py                     # the cpu profile's shapes
+    python bench/train_step.py --profile tiny --steps 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import torch
+import yaml
+
+from nostra.modality import Modality, kind_of_key
+from nostra.policies import policy_module
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def profile_shapes(name: str) -> dict:
+    prof = yaml.safe_load((ROOT / "conf" / "profile" / f"{name}.yaml").read_text())
+    keys = prof.get("obs_keys") or yaml.safe_load((ROOT / "conf/data/default.yaml").read_text())["obs_keys"]
+    return {"batch": prof["batch_size"], "seq": prof["seq_len"], "size": prof["image_size"], "keys": keys,
+            "net": {"image_encoder": prof["image_encoder"], "image_aug": prof.get("image_aug", "none")}}
+
+
+def modalities(keys: list[str], size: int) -> list[Modality]:
+    shape = {"rgb": (size, size, 3), "depth": (size, size, 1)}
+    lowdim = {"robot0_eef_pos": (3,), "robot0_eef_quat": (4,), "robot0_gripper_qpos": (2,)}
+    return [Modality(k, kind_of_key(k), shape.get(kind_of_key(k)) or lowdim[k]) for k in keys]
+
+
+def batch(mods: list[Modality], b: int, t: int) -> dict:
+    obs = {}
+    for m in mods:
+        if m.kind == "rgb":
+            obs[m.name] = torch.randint(0, 256, (b, t, *m.shape), dtype=torch.uint8)
+        else:
+            obs[m.name] = torch.rand(b, t, *m.shape)
+    return {"obs": obs, "actions": torch.rand(b, t, 7) * 2 - 1}
+
+
+def measure(policy: str, mods, shapes: dict, steps: int, warmup: int = 2) -> dict:
+    torch.manual_seed(0)
+    module = policy_module(policy)([m.to_dict() for m in mods], 7, net=dict(shapes["net"]))
+    module.train()
+    opt = module.configure_optimizers()
+    data = batch(mods, shapes["batch"], shapes["seq"])
+    for i in range(warmup + steps):
+        if i == warmup:
+            start = time.perf_counter()
+        opt.zero_grad()
+        module.training_step(data, i).backward()
+        opt.step()
+    sec = (time.perf_counter() - start) / steps
+    return {"policy": policy, "seconds_per_step": round(sec, 4), "samples_per_s": round(shapes["batch"] / sec, 2),
+            "frames_per_s": round(shapes["batch"] * shapes["seq"] / sec, 1),
+            "params": sum(p.numel() for p in module.parameters())}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--profile", default="cpu")
+    ap.add_argument("--steps", type=int, default=10)
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    ap.add_argument("--encoder", default=None, help="override the profile's image encoder")
+    args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    shapes = profile_shapes(args.profile)
+    if args.encoder:
+        shapes["net"]["image_encoder"] = args.encoder
+    mods = modalities(shapes["keys"], shapes["size"])
+    common = {"profile": args.profile, "batch": shapes["batch"], "seq": shapes["seq"], "image_size": shapes["size"],
+              "keys": len(mods), **shapes["net"], "threads": torch.get_num_threads()}
+    rows = {}
+    for policy in ("lstm", "rssm", "nostra"):
+        rows[policy] = measure(policy, mods, shapes, args.steps)
+        print(json.dumps({**common, **rows[policy]}), flush=True)
+    ratio = rows["nostra"]["seconds_per_step"] / rows["lstm"]["seconds_per_step"]
+    print(json.dumps({"nostra_over_lstm_per_sample": round(ratio, 3), "bound": 1.5, "within": ratio <= 1.5}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,136 @@
+"""Rollouts during training (robomimic's habit): every ``every`` steps the policy as it stands is
+saved as ``checkpoints/step=<n>.ckpt`` and rolled out in the simulator on fixed seeds that no demo
+used, through the evaluation code (``nostra.evaluation.run_jobs``: the same episode loop, worker
+processes and noise schedules as ``nostra evaluate``). Success goes to MLflow as
+``rollout/<task>/<noise>/<variant>`` at that step; the checkpoint with the best success on the
+first noise and variant (clean, closed loop by default) is copied to ``checkpoints/best.ckpt``.
+Early checks use few episodes, the one at the end of training ``final_episodes``, so rollouts stay
+a small share of the wall time; ``rollouts.json`` lists every check with its cost.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import lightning as L
+
+from nostra.variants import MODES
+
+# variant id suffix of each imagination mode, as in the evaluation tables (nostra_mli, rssm_li, ...)
+SUFFIX = {"closed": "", "oracle": "_mli", "adaptive": "_adamli"}
+
+
+@dataclass
+class RolloutConfig:
+    task: str
+    every: int = 0                 # steps between checks; 0 turns in-training rollouts off
+    episodes: int = 10             # per cell at each check during training
+    final_episodes: int = 50       # per cell at the end of training
+    noises: list = field(default_factory=lambda: ["none"])
+    modes: list = field(default_factory=lambda: ["closed"])  # closed | oracle (MLI) | adaptive (AdaMLI)
+    seed: int = 1000               # episode i has seed seed + i at every check: demos use seeds from 0
+    horizon: int | None = None
+    windows: dict = field(default_factory=dict)
+    noise_params: dict = field(default_factory=dict)
+    image_size: int = 84
+    workers: int = 2
+
+    def __post_init__(self):
+        from nostra.sim.noise import check_noise
+        from nostra.sim.tasks import get_task
+
+        get_task(self.task)
+        for n in self.noises:
+            check_noise(n)
+        bad = [m for m in self.modes if m not in MODES]
+        if bad:
+            raise ValueError(f"train.rollout.modes: unknown {bad}; valid: {', '.join(MODES)}")
+        if self.every < 0 or self.episodes < 1 or self.final_episodes < 0:
+            raise ValueError(f"train.rollout needs every >= 0, episodes >= 1, final_episodes >= 0; got {asdict(self)}")
+
+
+def variant_id(policy: str, mode: str) -> str:
+    suffix = "_li" if (policy, mode) == ("rssm", "oracle") else SUFFIX[mode]
+    return policy + suffix
+
+
+class RolloutCallback(L.Callback):
+    def __init__(self, cfg: RolloutConfig, policy: str, out_dir: str | Path, can_imagine: bool):
+        from nostra.sim.tasks import get_task
+
+        if not can_imagine and set(cfg.modes) - {"closed"}:
+            raise ValueError(f"train.rollout.modes={cfg.modes}: a '{policy}' policy cannot imagine; use [closed]")
+        self.cfg, self.policy, self.out = cfg, policy, Path(out_dir)
+        self.task = get_task(cfg.task)
+        self.log_path = self.out / "rollouts.json"
+        self.history: list[dict] = json.loads(self.log_path.read_text()) if self.log_path.is_file() else []
+        self.best = max((h["score"] for h in self.history), default=-1.0)
+        self.started = time.time()
+
+    # ---- hooks -----------------------------------------------------------------------------
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+        step = trainer.global_step
+        if self.cfg.every and step % self.cfg.every == 0 and not self._done(step):
+            self.check(trainer, self.cfg.episodes)
+
+    def on_train_end(self, trainer, pl_module):
+        if self.cfg.final_episodes and not self._done(trainer.global_step, self.cfg.final_episodes):
+            self.check(trainer, self.cfg.final_episodes)
+
+    # ---- one check -------------------------------------------------------------------------
+    def check(self, trainer, episodes: int) -> dict:
+        from nostra.evaluation import run_jobs, wilson
+        from nostra.sim.rollout import EpisodeJob
+
+        step, start = trainer.global_step, time.time()
+        path = self.out / "checkpoints" / f"step={step}.ckpt"
+        if trainer.is_global_zero:
+            trainer.save_checkpoint(path)
+        row = {"step": step, "episodes": episodes, "checkpoint": path.name, "success": {}}
+        if trainer.is_global_zero:
+            cells = [(n, m) for n in self.cfg.noises for m in self.cfg.modes]
+            windows = self.cfg.windows.get(self.task.name) or [list(w) for w in self.task.noise_windows]
+            jobs = [EpisodeJob(self.task.name, n, variant_id(self.policy, m), str(path), m, self.cfg.seed + i,
+                               self.cfg.horizon or self.task.horizon, windows, dict(self.cfg.noise_params),
+                               self.cfg.image_size) for n, m in cells for i in range(episodes)]
+            results = run_jobs(jobs, self.cfg.workers, progress=False)
+            metrics = {}
+            for n, m in cells:
+                v = variant_id(self.policy, m)
+                ok = [r.success for r in results if (r.job.noise, r.job.variant) == (n, v)]
+                rate = sum(ok) / len(ok)
+                metrics[f"rollout/{self.task.name}/{n}/{v}"] = rate
+                row["success"][f"{n}/{v}"] = {"rate": rate, "ci": list(wilson(sum(ok), len(ok))),
+                                              "errors": sum(bool(r.reason) for r in results
+                                                            if (r.job.noise, r.job.variant) == (n, v))}
+            row["score"] = metrics[f"rollout/{self.task.name}/{cells[0][0]}/{variant_id(self.policy, cells[0][1])}"]
+            row["seconds"] = round(time.time() - start, 1)
+            row["wall_seconds"] = round(time.time() - self.started, 1)
+            if row["score"] >= self.best:  # ties go to the later, longer-trained checkpoint
+                self.best = row["score"]
+                shutil.copyfile(path, self.out / "checkpoints" / "best.ckpt")
+                row["best"] = True
+            for logger in trainer.loggers:
+                logger.log_metrics({**metrics, "rollout/seconds": row["seconds"]}, step=step)
+            self.history.append(row)
+            self.log_path.write_text(json.dumps(self.history, indent=2))
+            print(f"rollouts at step {step}: " + ", ".join(f"{k} {v['rate']:.0%}" for k, v in row["success"].items())
+                  + f" ({episodes} episodes, {row['seconds']:.0f} s)" + (" best" if row.get("best") else ""))
+        trainer.strategy.barrier("rollouts")  # other ranks wait for rank 0's rollouts
+        return row
+
+    def _done(self, step: int, episodes: int | None = None) -> bool:
+        """Already checked at this step (a resumed run), with at least this many episodes."""
+        return any(h["step"] == step and h["episodes"] >= (episodes or 0) for h in self.history)
+
+    def summary(self) -> dict:
+        """Rollout cost against the wall time of the run, and the best and last checks."""
+        spent = sum(h.get("seconds", 0) for h in self.history)
+        best = max(self.history, key=lambda h: (h["score"], h["step"]), default=None)
+        return {"rollout_seconds": round(spent, 1), "checks": len(self.history),
+                "best": best and {"step": best["step"], "score": best["score"], "episodes": best["episodes"]},
+                "last": self.history[-1] if self.history else None}

@@ -1,0 +1,145 @@
+"""The training recipe of the CPU profile: image augmentation in training only, recurrent state
+reset every rnn_horizon steps at rollout, noise-injected demos (executed vs expert actions), the
+blind control, rollouts during training with the best checkpoint, and checkpoint selection."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import small_net
+from nostra.data.fixtures import write_robomimic
+from nostra.data.store import Store
+from nostra.modality import Modality
+from nostra.models.encoders import ImageAug
+from nostra.policies import LSTMNet, LSTMRunner, NostraNet, NostraRunner
+from nostra.policies.checkpoint import select_checkpoint
+from nostra.sim.noise import NoiseSchedule
+from nostra.training import TrainSpec, train
+from nostra.training_rollouts import RolloutConfig
+
+MODS = [Modality("agentview_image", "rgb", (40, 40, 3)), Modality("robot0_eef_pos", "lowdim", (3,))]
+
+
+def _obs(rng, n):
+    return [{"agentview_image": rng.integers(0, 256, (40, 40, 3), dtype=np.uint8),
+             "robot0_eef_pos": rng.normal(size=3).astype(np.float32)} for _ in range(n)]
+
+
+@pytest.mark.parametrize("kind", ["crop", "shift"])
+def test_augmentation_changes_training_batches_never_evaluation(kind):
+    torch.manual_seed(0)
+    net = LSTMNet(MODS, 7, image_aug=kind, aug_pixels=4, **small_net("lstm"))
+    frames = torch.randint(0, 256, (4, 2, 40, 40, 3), dtype=torch.uint8)
+    obs = {"agentview_image": frames, "robot0_eef_pos": torch.zeros(4, 2, 3)}
+    net.train()
+    a, b = net.encode(obs)["agentview_image"], net.encode(obs)["agentview_image"]
+    assert not torch.allclose(a, b)  # a new random window each time
+    net.eval()
+    c, d = net.encode(obs)["agentview_image"], net.encode(obs)["agentview_image"]
+    torch.testing.assert_close(c, d)
+    aug = ImageAug(kind, 4).eval()
+    flat = frames.reshape(-1, 40, 40, 3)
+    expected = flat[:, 2:38, 2:38] if kind == "crop" else flat
+    assert torch.equal(aug(flat), expected)  # centre crop / untouched at evaluation
+    # runners put the network in eval mode: the same observation gives the same action
+    runner = LSTMRunner(net, rnn_horizon=1)
+    o = _obs(np.random.default_rng(0), 1)[0]
+    np.testing.assert_array_equal(runner.step(o)[0], runner.step(o)[0])
+
+
+def test_unknown_augmentation_is_refused():
+    with pytest.raises(ValueError, match="crop, shift"):
+        ImageAug("flip")
+
+
+@pytest.mark.parametrize("cls,runner_cls", [(LSTMNet, LSTMRunner), (NostraNet, NostraRunner)])
+def test_state_is_reset_exactly_every_rnn_horizon_steps(cls, runner_cls):
+    torch.manual_seed(0)
+    net = cls(MODS, 7, **small_net("lstm" if cls is LSTMNet else "nostra")).eval()
+    steps = _obs(np.random.default_rng(1), 7)
+    every3 = runner_cls(net, rnn_horizon=3)
+    acts = [every3.step(o)[0] for o in steps]
+    fresh = runner_cls(net, rnn_horizon=0)
+    for start in (0, 3, 6):  # a window starts here: the same actions as a runner just reset
+        fresh.reset()
+        for t in range(start, min(start + 3, 7)):
+            np.testing.assert_allclose(acts[t], fresh.step(steps[t])[0], rtol=1e-5, atol=1e-6)
+    carried = runner_cls(net, rnn_horizon=0)
+    carried_acts = [carried.step(o)[0] for o in steps]
+    np.testing.assert_allclose(acts[:3], carried_acts[:3], rtol=1e-5, atol=1e-6)
+    assert not np.allclose(acts[3], carried_acts[3])  # carrying the state differs after the reset point
+
+
+def test_blind_noise_blacks_every_camera_from_the_first_step():
+    s = NoiseSchedule("blind", [[15, 35]])
+    assert s.active(0) and s.active(500)
+    obs = {"agentview_image": np.full((4, 4, 3), 200, np.uint8), "agentview_depth": np.ones((4, 4, 1), np.float32),
+           "robot0_eef_pos": np.ones(3, np.float32)}
+    seen = s.corrupt(obs, 0)
+    assert not seen["agentview_image"].any() and not seen["agentview_depth"].any()
+    np.testing.assert_array_equal(seen["robot0_eef_pos"], obs["robot0_eef_pos"])
+    assert {"agentview_image", "robot0_eye_in_hand_image", "agentview_depth"} == s.keys
+
+
+@pytest.mark.sim
+def test_noisy_demos_store_the_expert_action_or_the_executed_one():
+    from nostra.sim.env import make_env
+    from nostra.sim.experts import make_expert
+    from nostra.sim.generate import run_episode
+
+    env = make_env("Lift", render=False)
+    expert = make_expert(env)
+    clean = run_episode(env, expert, 3, max_steps=25)
+    dart = run_episode(env, expert, 3, max_steps=25, action_noise=0.2, record="expert")
+    mimic = run_episode(env, expert, 3, max_steps=25, action_noise=0.2, record="executed")
+    np.testing.assert_array_equal(dart["states"], mimic["states"])  # the same noise, the same executed path
+    assert not np.allclose(dart["states"], clean["states"])  # ... which the noise changed
+    diff = mimic["actions"] - dart["actions"]  # executed = clip(expert + noise)
+    assert 0.05 < np.abs(diff).mean() < 0.3 and np.abs(mimic["actions"]).max() <= 1.0
+    env.close()
+
+
+def test_checkpoint_selection(tmp_path):
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "policy.ckpt").write_bytes(b"x")
+    assert select_checkpoint(run / "policy.ckpt", "last") == str(run / "policy.ckpt")
+    with pytest.raises(FileNotFoundError, match="without in-training rollouts"):
+        select_checkpoint(run / "policy.ckpt", "best")
+    (run / "checkpoints" / "step=20.ckpt").write_bytes(b"x")
+    assert select_checkpoint(run, "step=20").endswith("step=20.ckpt")
+    with pytest.raises(FileNotFoundError, match="step=20"):
+        select_checkpoint(run, "step=30")
+    with pytest.raises(ValueError, match="best | last"):
+        select_checkpoint(run, "first")
+
+
+@pytest.mark.sim
+def test_rollouts_during_training_log_success_and_keep_the_best(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    keys = ["agentview_image", "robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos"]
+    s = Store(tmp_path / "store.zarr")
+    s.ingest(write_robomimic(tmp_path / "t.hdf5", n=4, lengths=[12] * 4, image_size=40), name="t", progress=False)
+    rollout = RolloutConfig(task="Lift", every=2, episodes=2, final_episodes=3, modes=["closed", "oracle"],
+                            noises=["none", "blind"], horizon=5, image_size=40, workers=1)
+    out = tmp_path / "run"
+    torch.manual_seed(0)
+    result = train(TrainSpec(policy="nostra", store=str(s.path), collections=["t"], keys=keys, out_dir=str(out),
+                             net=small_net("nostra"), seq_len=6, batch_size=2, max_steps=4, num_workers=0,
+                             progress=False, val_fraction=0, experiment="t", rollout=rollout))
+    checks = json.loads((out / "rollouts.json").read_text())
+    assert [(c["step"], c["episodes"]) for c in checks] == [(2, 2), (4, 2), (4, 3)]
+    assert set(checks[0]["success"]) == {"none/nostra", "none/nostra_mli", "blind/nostra", "blind/nostra_mli"}
+    assert (out / "checkpoints/best.ckpt").is_file() and (out / "checkpoints/step=2.ckpt").is_file()
+    assert result["rollouts"]["checks"] == 3 and result["best_checkpoint"].endswith("best.ckpt")
+    logged = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    steps = [m["step"] for m in logged if "rollout/Lift/none/nostra" in m.get("metrics", {})]
+    assert steps == [2, 4, 4]
+    assert select_checkpoint(out / "policy.ckpt", "best") == str(out / "checkpoints/best.ckpt")
+    with pytest.raises(ValueError, match="cannot imagine"):
+        train(TrainSpec(policy="lstm", store=str(s.path), collections=["t"], keys=keys, out_dir=str(tmp_path / "l"),
+                        net=small_net("lstm"), seq_len=6, batch_size=2, max_steps=2, num_workers=0, progress=False,
+                        val_fraction=0, experiment="t", rollout=rollout))
