@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell sha256sum pyproject.toml | cut -c1-16)
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench cpu cpu-recipe clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || python3 -m venv $(VENV)
@@ -16,6 +16,12 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	@bash scripts/demo.sh
+
+cpu: $(STAMP)
+	@bash scripts/cpu.sh
+
+cpu-recipe: $(STAMP)
+	@bash scripts/cpu_recipe.sh
 
 test: $(STAMP)
 	$(PY) -m pytest -q

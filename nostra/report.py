@@ -24,6 +24,9 @@ ROWS_T4 = ["lstm", "rssm", "nostra"]  # the paper fine-tunes the recurrent polic
 ROWS_T5 = ["lstm", "diffusion", "rssm", "nostra"]
 SUCCESS = re.compile(r"^metrics\.success/(?P<task>[^/]+)/(?P<noise>[^/]+)/(?P<variant>[^/]+)$")
 DASH = "–"
+CELL_COLUMNS = ("task", "noise", "variant", "value", "table", "setting", "run_id", "checkpoint")
+# evaluate.checkpoint -> how the tables name it: the final checkpoint, or the peak over checkpoints
+CHECKPOINT_TITLES = {"last": "final checkpoint", "best": "peak over checkpoints (best in-training rollouts)"}
 
 
 def runs(experiment: str, uri: str | None = None) -> pd.DataFrame:
@@ -42,9 +45,10 @@ def success_cells(df: pd.DataFrame) -> pd.DataFrame:
         for col, key in metrics.items():
             if _present(rec.get(col)):
                 rows.append({**key, "value": float(rec[col]), "table": _param(rec, "table", "robustness"),
-                             "setting": _param(rec, "setting", ""), "run_id": rec["run_id"]})
-    out = pd.DataFrame(rows, columns=["task", "noise", "variant", "value", "table", "setting", "run_id"])
-    return out.drop_duplicates(["table", "setting", "task", "noise", "variant"], keep="last")
+                             "setting": _param(rec, "setting", ""), "run_id": rec["run_id"],
+                             "checkpoint": _param(rec, "checkpoint", "last")})
+    out = pd.DataFrame(rows, columns=[*CELL_COLUMNS])
+    return out.drop_duplicates(["table", "setting", "task", "noise", "variant", "checkpoint"], keep="last")
 
 
 def _present(v) -> bool:
@@ -67,9 +71,10 @@ def _lookup(cells, **where):
     return float(sel["value"].iloc[-1]) if len(sel) else None
 
 
-def table_noise(cells: pd.DataFrame, table: str, noises: list[str], rows: list[str], title: str):
-    """Tables 1 and 2: methods x (task, noise)."""
-    cells = cells[cells["table"] == table]
+def table_noise(cells: pd.DataFrame, table: str, noises: list[str], rows: list[str], title: str,
+                checkpoint: str = "last"):
+    """Tables 1 and 2: methods x (task, noise), for the runs evaluated with one checkpoint choice."""
+    cells = cells[(cells["table"] == table) & (cells["checkpoint"] == checkpoint)]
     tasks = list(dict.fromkeys(cells["task"])) or ["(no task evaluated)"]
     header = ["Method"] + [f"{t} {n}" for t in tasks for n in noises]
     body, missing = [], []
@@ -141,13 +146,19 @@ def to_markdown(title: str, table: pd.DataFrame, note: str) -> str:
 
 
 def tables(df: pd.DataFrame) -> dict[str, tuple]:
-    cells = success_cells(df) if len(df) else pd.DataFrame(columns=["task", "noise", "variant", "value", "table",
-                                                                      "setting", "run_id"])
+    cells = success_cells(df) if len(df) else pd.DataFrame(columns=[*CELL_COLUMNS])
+    out = {}
+    # the final checkpoint always; the peak too where runs were evaluated with checkpoint=best
+    for ck in ["last"] + (["best"] if (cells["checkpoint"] == "best").any() else []):
+        suffix, what = ("" if ck == "last" else f"_{ck}"), CHECKPOINT_TITLES[ck]
+        out[f"table1_robustness{suffix}"] = table_noise(
+            cells, "robustness", ROBUSTNESS_NOISES, ROWS_T1,
+            f"Table 1: success (%) under visual noise (MLI / LI use an oracle), {what}", ck)
+        out[f"table2_adamli{suffix}"] = table_noise(
+            cells, "robustness", ADAMLI_NOISES, ROWS_T2,
+            f"Table 2: success (%) under multimodal noise with AdaMLI, {what}", ck)
     return {
-        "table1_robustness": table_noise(cells, "robustness", ROBUSTNESS_NOISES, ROWS_T1,
-                                         "Table 1: success (%) under visual noise (MLI / LI use an oracle)"),
-        "table2_adamli": table_noise(cells, "robustness", ADAMLI_NOISES, ROWS_T2,
-                                     "Table 2: success (%) under multimodal noise with AdaMLI"),
+        **out,
         "table3_kl": table_kl(df, "Table 3: information per modality (KL, nats) by training data"),
         "table4_finetune": table_settings(cells, "finetune", ROWS_T4,
                                           "Table 4: success (%) after fine-tuning a pretrained policy"),

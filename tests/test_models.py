@@ -49,7 +49,7 @@ def test_gmm_act_is_the_dominant_mode():
 def test_unknown_names_are_refused():
     with pytest.raises(ValueError, match="unknown action head 'mdn'; valid: gaussian, gmm"):
         make_head("mdn", 4, [], 2)
-    with pytest.raises(ValueError, match="unknown image encoder 'vit'; valid: resnet18, light"):
+    with pytest.raises(ValueError, match="unknown image encoder 'vit'; valid: light, spatial, resnet18"):
         ModalityEncoder(Modality("a_image", "rgb", (84, 84, 3)), "vit", 8, [])
     with pytest.raises(ValueError, match="unknown kind 'audio'"):
         Modality("mic", "audio", (3,))

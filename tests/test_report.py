@@ -47,3 +47,14 @@ def test_empty_experiment_gives_dashes(tmp_path):
     index = write_report(tmp_path / "r", "nothing-here")
     assert "0 runs" in index.read_text()
     assert (tmp_path / "r/table2_adamli.md").read_text().count("–") > 5
+
+
+def test_peak_and_final_checkpoints_get_their_own_tables(tmp_path):
+    _log("evaluate-last", {"table": "robustness"}, {"success/Lift/none/lstm": 0.6}, tmp_path)
+    _log("evaluate-best", {"table": "robustness", "checkpoint": "best"}, {"success/Lift/none/lstm": 0.9}, tmp_path)
+    write_report(tmp_path / "report", "rep")
+    final = pd.read_csv(tmp_path / "report/table1_robustness.csv").set_index("Method")
+    peak = pd.read_csv(tmp_path / "report/table1_robustness_best.csv").set_index("Method")
+    assert final.loc["BC-LSTM", "Lift none"] == "60" and peak.loc["BC-LSTM", "Lift none"] == "90"
+    assert "peak over checkpoints" in (tmp_path / "report/table1_robustness_best.md").read_text()
+    assert "final checkpoint" in (tmp_path / "report/table1_robustness.md").read_text()

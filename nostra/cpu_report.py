@@ -1,0 +1,227 @@
+"""The CPU profile's report (`make cpu`): success with the best and the last checkpoint, clean and
+blind, per training seed; the cost of training and of its rollouts; the rollout learning curves.
+Reads what the runs wrote (run.json, rollouts.json, success.csv) and writes index.md, success.csv
+and learning_curves.png into the report folder. `recipe` writes the table of `make cpu-recipe`:
+which switch of the recipe moved success, by how much, with intervals.
+
+    python -m nostra.cpu_report --task liftd1 --runs data/runs/cpu --seeds 0 --models lstm nostra --out reports/cpu/liftd1
+    python -m nostra.cpu_report recipe --evaluations data/runs/cpu/evaluate/liftd1/recipe --task liftd1 --out recipe.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+from pathlib import Path
+
+import pandas as pd
+
+from nostra.sim.tasks import get_task
+from nostra.variants import LABELS
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    return f"{os.cpu_count()} cores ({cpu}), {mem:.0f} GiB RAM, no GPU"
+
+
+def cell(r) -> str:
+    return f"{100 * r.success_rate:.0f} [{100 * r.ci_low:.0f}, {100 * r.ci_high:.0f}]"
+
+
+def success_rows(runs: Path, task: str, seeds: list[int]) -> pd.DataFrame:
+    frames = []
+    for seed in seeds:
+        for ck in ("best", "last"):
+            path = runs / "evaluate" / task / f"s{seed}" / ck / "success.csv"
+            if path.is_file():
+                frames.append(pd.read_csv(path).assign(seed=seed, checkpoint=ck))
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def success_table(df: pd.DataFrame) -> list[str]:
+    """One row per (seed, variant): clean with best and last, blind with best."""
+    cols = [("none", "best", "clean, best"), ("none", "last", "clean, last"), ("blind", "best", "blind, best")]
+    lines = ["| Seed | Method | " + " | ".join(c[2] for c in cols) + " |", "|---" * (len(cols) + 2) + "|"]
+    for (seed, variant), g in df.groupby(["seed", "variant"], sort=False):
+        cells = []
+        for noise, ck, _ in cols:
+            r = g[(g.noise == noise) & (g.checkpoint == ck)]
+            cells.append(cell(next(r.itertuples())) if len(r) else "–")
+        label = LABELS.get(variant, variant)
+        if variant == "nostra_mli":
+            label = "BC-NOSTRA, cameras imagined (MLI)"
+        lines.append(f"| {seed} | {label} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def training_rows(runs: Path, task_name: str, seeds: list[int], models: list[str]) -> tuple[list[str], dict]:
+    lines = ["| Seed | Model | steps | wall (min) | rollouts (min, share) | checks | best step (success, episodes) |",
+             "|---|---|---|---|---|---|---|"]
+    curves = {}
+    for seed in seeds:
+        for m in models:
+            run = runs / "train" / f"pretrain-{m}-{task_name}-s{seed}"
+            if not (run / "run.json").is_file():
+                lines.append(f"| {seed} | {LABELS.get(m, m)} | – | – | – | – | not trained |")
+                continue
+            info = json.loads((run / "run.json").read_text())
+            checks = json.loads((run / "rollouts.json").read_text()) if (run / "rollouts.json").is_file() else []
+            curves[(seed, m)] = checks
+            wall = info.get("wall_seconds") or float("nan")
+            spent = sum(c.get("seconds", 0) for c in checks)
+            best = max(checks, key=lambda c: (c["score"], c["step"]), default=None)
+            best_s = f"{best['step']} ({100 * best['score']:.0f}%, {best['episodes']})" if best else "–"
+            lines.append(f"| {seed} | {LABELS.get(m, m)} | {info['steps']} | {wall / 60:.1f} | "
+                         f"{spent / 60:.1f} ({100 * spent / wall:.0f}%) | {len(checks)} | {best_s} |")
+    return lines, curves
+
+
+def curve_figure(curves: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for (seed, m), checks in curves.items():
+        if checks:
+            ax.plot([c["step"] for c in checks], [100 * c["score"] for c in checks], marker="o",
+                    label=f"{LABELS.get(m, m)} s{seed}")
+    ax.set_xlabel("training step")
+    ax.set_ylabel("clean success (%)")
+    ax.set_ylim(-5, 105)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Rollouts during training")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def episode_successes(folder: Path) -> dict[int, bool]:
+    """seed -> success of every clean episode an evaluation folder recorded (one variant each)."""
+    out = {}
+    for f in sorted((folder / "records").glob("*/none/*_seed*.npz")):
+        import numpy as np
+
+        out[int(f.stem.rsplit("_seed", 1)[1])] = bool(np.load(f)["success"])
+    return out
+
+
+# (label, evaluation, the one it is compared with, paired: same checkpoint and seeds, only the runner differs)
+RECIPE = [
+    ("BC-LSTM, the recipe (crop, noise-injected demos, reset every 10 steps)", "base", None, False),
+    ("BC-LSTM, image augmentation off", "noaug", "base", False),
+    ("BC-LSTM, noise-free demos", "nonoise", "base", False),
+    ("BC-LSTM best checkpoint, state reset every 10 steps", "reset10", None, False),
+    ("BC-LSTM best checkpoint, state carried all episode", "carry", "reset10", True),
+    ("BC-NOSTRA best checkpoint, filter carried all episode", "nostra_carry", None, False),
+    ("BC-NOSTRA best checkpoint, filter restarted every 10 steps", "nostra_reset10", "nostra_carry", True),
+]
+
+
+def compare(a: dict[int, bool], b: dict[int, bool], paired: bool) -> str:
+    """Difference a - b in points with a 95% interval; McNemar's exact p where paired, else
+    Newcombe's interval for two independent proportions."""
+    from statsmodels.stats.contingency_tables import mcnemar
+    from statsmodels.stats.proportion import confint_proportions_2indep
+
+    ka, na, kb, nb = sum(a.values()), len(a), sum(b.values()), len(b)
+    diff = 100 * (ka / na - kb / nb)
+    if paired:
+        seeds = sorted(set(a) & set(b))
+        t = [[sum(a[s] and b[s] for s in seeds), sum(a[s] and not b[s] for s in seeds)],
+             [sum(b[s] and not a[s] for s in seeds), sum(not a[s] and not b[s] for s in seeds)]]
+        return f"{diff:+.0f} (McNemar exact p = {mcnemar(t, exact=True).pvalue:.2g})"
+    lo, hi = confint_proportions_2indep(ka, na, kb, nb, method="newcomb")
+    return f"{diff:+.0f} [{100 * lo:+.0f}, {100 * hi:+.0f}]"
+
+
+def recipe_main(argv: list[str]) -> None:
+    from nostra.evaluation import wilson
+
+    ap = argparse.ArgumentParser(prog="python -m nostra.cpu_report recipe")
+    ap.add_argument("--evaluations", required=True)
+    ap.add_argument("--task", required=True)
+    ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--command", default="make cpu-recipe")
+    ap.add_argument("--wall-seconds", type=float, default=None)
+    args = ap.parse_args(argv)
+    ev = Path(args.evaluations)
+    found = {name: episode_successes(ev / name) for _, name, _, _ in RECIPE if (ev / name).is_dir()}
+    lines = [f"# Which switches of the CPU recipe move success ({get_task(args.task).name})", "",
+             f"- Command: `{args.command}`", f"- Machine: {machine()}",
+             f"- Wall time: {args.wall_seconds / 60:.0f} min" if args.wall_seconds else "- Wall time: -",
+             f"- Training runs compared at the same step ({args.steps}); clean rollouts on the evaluation seeds, "
+             "the same for every row", "",
+             "| Setting | success % [95% CI] | difference (points) |", "|---|---|---|"]
+    for label, name, ref, paired in RECIPE:
+        if name not in found or not found[name]:
+            lines.append(f"| {label} | – (not run) | |")
+            continue
+        k, n = sum(found[name].values()), len(found[name])
+        lo, hi = wilson(k, n)
+        diff = compare(found[name], found[ref], paired) if ref in found and found.get(ref) else ""
+        lines.append(f"| {label} | {100 * k / n:.0f} [{100 * lo:.0f}, {100 * hi:.0f}] (n={n}) | {diff} |")
+    lines += ["", "Differences against the row each switch changes: Newcombe 95% intervals where two trainings are "
+              "compared; where one checkpoint runs with two state-reset rules on the same seeds, the pairs are "
+              "compared with McNemar's exact test.", ""]
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text("\n".join(lines))
+    print("\n".join(lines))
+
+
+def main(argv: list[str] | None = None) -> None:
+    import sys
+
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["recipe"]:
+        return recipe_main(argv[1:])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--task", required=True)
+    ap.add_argument("--runs", required=True)
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0])
+    ap.add_argument("--models", nargs="+", default=["lstm", "nostra"])
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--command", default="make cpu")
+    ap.add_argument("--wall-seconds", type=float, default=None)
+    args = ap.parse_args(argv)
+    task = get_task(args.task).name  # unknown task -> the valid ones
+    runs, out = Path(args.runs), Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    df = success_rows(runs, task, args.seeds)
+    if len(df):
+        df.to_csv(out / "success.csv", index=False)
+    train_lines, curves = training_rows(runs, task, args.seeds, args.models)
+    curve_figure(curves, out / "learning_curves.png")
+    episodes = int(df["episodes"].max()) if len(df) else 0
+    wall = f"{args.wall_seconds / 60:.0f} min" if args.wall_seconds else "see the training table"
+    text = [f"# CPU profile: {task}", "",
+            f"- Command: `{args.command}`", f"- Machine: {machine()}", f"- Wall time of the command: {wall}",
+            f"- Training seeds: {', '.join(map(str, args.seeds))}; demos: expert seeds from 0; "
+            f"rollouts: seeds 1000-{1000 + max(episodes, 1) - 1} (never used by demos), the same for every variant",
+            "", "## Success", "",
+            f"Success rate in % over {episodes} episodes per cell, 95% Wilson interval in brackets. "
+            "*best*: the checkpoint with the best in-training rollout success (the peak, as the paper and "
+            "diffusion_policy report); *last*: the end of training. *blind*: no camera at any step (black frames; "
+            "for the MLI row the camera latents are imagined from step 1).", "",
+            *(success_table(df) if len(df) else ["(no evaluation found)"]), "",
+            "## Training", "", *train_lines, "", "![learning curves](learning_curves.png)", ""]
+    (out / "index.md").write_text("\n".join(text))
+    print("\n".join(text))
+
+
+if __name__ == "__main__":
+    main()

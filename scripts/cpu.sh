@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# `make cpu`: the CPU profile end to end on one task (default LiftD1): 200 noise-injected expert
+# demos -> store -> BC-LSTM and BC-NOSTRA, 30 minutes each with rollouts during training ->
+# 50 rollouts per cell on seeds no demo used, with the best and the last checkpoint, clean and
+# blind (no camera all episode) -> reports/cpu/<task>/index.md.
+#
+# Every step is resumable: generation skips a finished file, ingest is idempotent, training
+# continues from last.ckpt (a finished run ends at once), so a killed run continues where it stopped.
+#   TASK=stackd1 MINUTES=60 SEEDS="0 1" MODELS="lstm nostra" make cpu
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export PATH="$PWD/.venv/bin:$PATH"
+TASK=${TASK:-liftd1}
+SEEDS=${SEEDS:-0}
+MODELS=${MODELS:-lstm nostra}
+MINUTES=${MINUTES:-30}
+RUNS=data/runs/cpu
+OUT=reports/cpu/$TASK
+COMMON="profile=cpu task=$TASK paths.runs=$RUNS"
+start=$(date +%s)
+log() { echo "[$(date +%H:%M:%S)] $*"; }
+
+raw=data/raw/${TASK}_cpu.hdf5
+if [ ! -f "$raw" ]; then
+  log "generate $raw"
+  nostra generate $COMMON generate.collection=${TASK}_cpu
+fi
+log "ingest $raw"
+nostra ingest $COMMON "ingest.sources=[$raw]" ingest.progress=false
+
+NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
+for seed in $SEEDS; do
+  for model in $MODELS; do
+    if [ -f "$RUNS/train/pretrain-$model-$NAME-s$seed/run.json" ]; then  # written when a run has finished
+      log "train $model seed $seed: finished before, kept"
+      continue
+    fi
+    log "train $model seed $seed ($MINUTES min budget)"
+    nostra train $COMMON model=$model seed=$seed "data.collections=[${TASK}_cpu]" train.max_minutes=$MINUTES \
+      "train.rollout.modes=[closed]"
+  done
+done
+
+# which variants exist: one per trained model (+ MLI for NOSTRA, which is the blind row's imagination)
+variants() {  # $1 = seed
+  local v="evaluate.variants.diffusion=null evaluate.variants.rssm=null evaluate.variants.rssm_li=null"
+  v="$v evaluate.variants.nostra_adamli=null"
+  case " $MODELS " in *" lstm "*) ;; *) v="$v evaluate.variants.lstm=null" ;; esac
+  case " $MODELS " in *" nostra "*) ;; *) v="$v evaluate.variants.nostra=null evaluate.variants.nostra_mli=null" ;; esac
+  echo "$v"
+}
+for seed in $SEEDS; do
+  for ck in best last; do
+    noises="[none,blind]"
+    [ "$ck" = last ] && noises="[none]"
+    log "evaluate seed $seed checkpoint=$ck noises=$noises"
+    nostra evaluate $COMMON seed=$seed evaluate.checkpoint=$ck "evaluate.noises=$noises" $(variants "$seed") \
+      evaluate.offline.enabled=false evaluate.out_dir=$RUNS/evaluate/$TASK/s$seed/$ck
+  done
+done
+
+python -m nostra.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES make cpu" \
+  --wall-seconds $(( $(date +%s) - start ))
+log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/index.md"

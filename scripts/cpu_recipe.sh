@@ -1,0 +1,69 @@
+#!/usr/bin/env bash
+# `make cpu-recipe`: which switches of the CPU recipe move BC-LSTM's success on a task (default
+# LiftD1), each with the rest of the recipe kept, at the same number of training steps (STEPS,
+# default 2000) as the `make cpu` run's step checkpoint it is compared with:
+#   image augmentation off, noise-free demos, and the LSTM state carried all episode instead of
+#   reset every rnn_horizon steps (the last also for NOSTRA: decides reset vs carry).
+# Needs the `make cpu` runs of seed 0. 50 episodes per cell on the evaluation seeds; writes
+# reports/cpu/<task>/recipe.md. Resumable like `make cpu`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export PATH="$PWD/.venv/bin:$PATH"
+TASK=${TASK:-liftd1}
+STEPS=${STEPS:-2000}
+RUNS=data/runs/cpu
+COMMON="profile=cpu task=$TASK paths.runs=$RUNS"
+NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
+BASE=$RUNS/train/pretrain-lstm-$NAME-s0
+EV=$RUNS/evaluate/$TASK/recipe
+start=$(date +%s)
+log() { echo "[$(date +%H:%M:%S)] $*"; }
+only() {  # evaluate.variants overrides keeping only $1
+  local v
+  for v in lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli; do
+    [ "$v" = "$1" ] || echo "evaluate.variants.$v=null"
+  done
+}
+evaluate() {  # $1 = out name, $2 = variant, $3 = checkpoint path, $4 = which, rest: extra overrides
+  local name=$1 variant=$2 ckpt=$3 which=$4
+  shift 4
+  [ -f "$EV/$name/success.csv" ] && { log "evaluate $name: done before"; return; }
+  log "evaluate $name"
+  nostra evaluate $COMMON $(only "$variant") "evaluate.variants.$variant.checkpoint=$ckpt" \
+    "evaluate.checkpoint='$which'" "evaluate.noises=[none]" evaluate.offline.enabled=false \
+    evaluate.videos_per_cell=0 evaluate.out_dir=$EV/$name "$@"
+}
+train() {  # $1 = run name, $2 = collection, rest: extra overrides
+  local name=$1 collection=$2
+  shift 2
+  [ -f "$RUNS/train/$name/run.json" ] && { log "train $name: done before"; return; }
+  log "train $name ($STEPS steps)"
+  nostra train $COMMON model=lstm "data.collections=[$collection]" train.run_name=$name train.max_steps=$STEPS \
+    train.max_minutes=null train.rollout.final_episodes=0 "$@"
+}
+
+# the baseline: the `make cpu` run at the same step, and its best checkpoint with the state carried
+evaluate base lstm "$BASE/policy.ckpt" "step=$STEPS"
+evaluate carry lstm "$BASE/policy.ckpt" best +evaluate.variants.lstm.rnn_horizon=0
+evaluate reset10 lstm "$BASE/policy.ckpt" best
+NOSTRA=$RUNS/train/pretrain-nostra-$NAME-s0
+if [ -f "$NOSTRA/policy.ckpt" ]; then
+  evaluate nostra_carry nostra "$NOSTRA/policy.ckpt" best +evaluate.variants.nostra.rnn_horizon=0
+  evaluate nostra_reset10 nostra "$NOSTRA/policy.ckpt" best +evaluate.variants.nostra.rnn_horizon=10
+fi
+
+# augmentation off
+train recipe-noaug-lstm ${TASK}_cpu model.net.image_aug=none
+evaluate noaug lstm "$RUNS/train/recipe-noaug-lstm/policy.ckpt" last
+
+# noise-free demos (the same expert seeds, no action noise)
+raw=data/raw/${TASK}_clean.hdf5
+[ -f "$raw" ] || nostra generate $COMMON generate.collection=${TASK}_clean generate.action_noise=0
+nostra ingest $COMMON "ingest.sources=[$raw]" ingest.progress=false
+train recipe-nonoise-lstm ${TASK}_clean
+evaluate nonoise lstm "$RUNS/train/recipe-nonoise-lstm/policy.ckpt" last
+
+python -m nostra.cpu_report recipe --evaluations "$EV" --task "$TASK" --steps "$STEPS" \
+  --out reports/cpu/$TASK/recipe.md --command "TASK=$TASK STEPS=$STEPS make cpu-recipe" \
+  --wall-seconds $(( $(date +%s) - start ))
+log "done in $(( ($(date +%s) - start) / 60 )) min: reports/cpu/$TASK/recipe.md"

@@ -1,0 +1,58 @@
+"""The CPU profile's report and recipe table are built from what the runs wrote: success cells
+with intervals for best/last and clean/blind, training cost, learning curves, and the recipe's
+differences (independent trainings: Newcombe interval; same checkpoint: McNemar)."""
+
+import json
+
+import numpy as np
+import pandas as pd
+
+from nostra import cpu_report
+
+
+def _success(path, rows):
+    path.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame([{"task": "LiftD1", "noise": n, "variant": v, "label": v, "episodes": 10, "successes": k,
+                   "success_rate": k / 10, "ci_low": 0.1, "ci_high": 0.9, "errors": 0} for n, v, k in rows]
+                 ).to_csv(path / "success.csv", index=False)
+
+
+def test_cpu_report(tmp_path):
+    runs = tmp_path / "runs"
+    _success(runs / "evaluate/LiftD1/s0/best", [("none", "lstm", 9), ("blind", "lstm", 1), ("none", "nostra_mli", 8)])
+    _success(runs / "evaluate/LiftD1/s0/last", [("none", "lstm", 7)])
+    run = runs / "train/pretrain-lstm-LiftD1-s0"
+    run.mkdir(parents=True)
+    (run / "run.json").write_text(json.dumps({"steps": 3000, "wall_seconds": 1800}))
+    (run / "rollouts.json").write_text(json.dumps([
+        {"step": 1000, "episodes": 10, "score": 0.6, "seconds": 60},
+        {"step": 2000, "episodes": 10, "score": 0.9, "seconds": 60},
+        {"step": 3000, "episodes": 50, "score": 0.7, "seconds": 180}]))
+    out = tmp_path / "report"
+    cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--out", str(out), "--wall-seconds", "3600"])
+    text = (out / "index.md").read_text()
+    assert "| 0 | BC-LSTM | 90 [10, 90] | 70 [10, 90] | 10 [10, 90] |" in text
+    assert "cameras imagined" in text and "| 0 | BC-NOSTRA | – | – | – | – | not trained |" in text
+    assert "| 0 | BC-LSTM | 3000 | 30.0 | 5.0 (17%) | 3 | 2000 (90%, 10) |" in text
+    assert (out / "learning_curves.png").stat().st_size > 0
+
+
+def _records(folder, successes):
+    rec = folder / "records/LiftD1/none"
+    rec.mkdir(parents=True)
+    for seed, ok in enumerate(successes):
+        np.savez(rec / f"lstm_seed{1000 + seed}.npz", success=ok, steps=10)
+
+
+def test_recipe_table(tmp_path):
+    ev = tmp_path / "ev"
+    _records(ev / "base", [True] * 9 + [False])
+    _records(ev / "noaug", [True] * 5 + [False] * 5)
+    _records(ev / "reset10", [True] * 10)
+    _records(ev / "carry", [False] * 8 + [True] * 2)
+    out = tmp_path / "recipe.md"
+    cpu_report.main(["recipe", "--evaluations", str(ev), "--task", "liftd1", "--out", str(out)])
+    text = out.read_text()
+    assert "| BC-LSTM, image augmentation off | 50 [24, 76] (n=10) | -40 [" in text
+    assert "state carried all episode | 20 [" in text and "-80 (McNemar exact p = 0.0078)" in text
+    assert "noise-free demos | – (not run)" in text
