@@ -7,8 +7,23 @@ from pathlib import Path
 from typing import Callable
 
 import hydra
+from omegaconf import OmegaConf
 
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
+
+
+def _if_gpus(gpus, with_gpus, without):
+    """${nostra.if_gpus:<gpus>,<value with GPUs>,<value without>} (conf/launcher/slurm.yaml)."""
+    return with_gpus if int(gpus or 0) > 0 else without
+
+
+def _gpus_per_node(gpus, gres):
+    """--gpus-per-node: none for a CPU job, nor when a gpu --gres already asks for the GPUs."""
+    return None if int(gpus or 0) <= 0 or "gpu" in str(gres or "") else int(gpus)
+
+
+OmegaConf.register_new_resolver("nostra.if_gpus", _if_gpus, replace=True)
+OmegaConf.register_new_resolver("nostra.gpus_per_node", _gpus_per_node, replace=True)
 
 
 def run(stage: str, argv: list[str], fn: Callable, config_name: str = "config") -> int:

@@ -7,6 +7,7 @@ one parent run, e.g.
 
 from __future__ import annotations
 
+import os
 import time
 
 from pipeline import train as train_stage
@@ -25,10 +26,17 @@ def main(argv: list[str]) -> int:
     overrides = [f"train.parent_run_id={parent.run_id}" if parent.run_id else "train.parent_run_id=null",
                  f"hydra.sweep.dir={folder}", "train.out_dir=${hydra:sweep.dir}/${hydra:sweep.subdir}",
                  "train.run_name=sweep-${model.policy}-${hydra:job.num}", "train.progress=false"]
+    # the jobs (Slurm: other processes, maybe other nodes and working dirs) track to the parent's store
+    saved = os.environ.get("MLFLOW_TRACKING_URI")
+    os.environ["MLFLOW_TRACKING_URI"] = parent.uri
     status = "FAILED"
     try:
         run("sweep", ["--multirun", *overrides, *argv], train_stage._app)
         status = "FINISHED"
     finally:
         print(parent.finish(status))
+        if saved is None:
+            os.environ.pop("MLFLOW_TRACKING_URI", None)
+        else:
+            os.environ["MLFLOW_TRACKING_URI"] = saved
     return 0

@@ -48,7 +48,8 @@ def test_slurm_launcher_writes_an_sbatch_script(tmp_path, monkeypatch):
         cfg = compose("config", overrides=["launcher=slurm", "launcher.gpus=4", "launcher.partition=a100"],
                       return_hydra_config=True)
     params = OmegaConf.to_container(cfg.hydra.launcher, resolve=False)
-    for k in ("partition", "gpus_per_node", "tasks_per_node", "timeout_min", "array_parallelism"):
+    for k in ("partition", "gpus_per_node", "tasks_per_node", "timeout_min", "array_parallelism", "cpus_per_task",
+              "mem_gb"):
         params[k] = OmegaConf.select(cfg, f"hydra.launcher.{k}")
     assert cfg.hydra.launcher._target_.endswith("SlurmLauncher")
     assert OmegaConf.to_container(cfg.train.trainer, resolve=True) == {"accelerator": "gpu", "devices": 4,
