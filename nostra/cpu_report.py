@@ -124,6 +124,7 @@ RECIPE = [
     ("BC-LSTM, the recipe (crop, noise-injected demos, reset every 10 steps)", "base", None, False),
     ("BC-LSTM, image augmentation off", "noaug", "base", False),
     ("BC-LSTM, noise-free demos", "nonoise", "base", False),
+    ("BC-LSTM, learning rate 3e-4 (recipe: the paper's 1e-4)", "lr3e-4", "base", False),
     ("BC-LSTM best checkpoint, state reset every 10 steps", "reset10", None, False),
     ("BC-LSTM best checkpoint, state carried all episode", "carry", "reset10", True),
     ("BC-NOSTRA best checkpoint, filter carried all episode", "nostra_carry", None, False),
@@ -154,7 +155,7 @@ def recipe_main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser(prog="python -m nostra.cpu_report recipe")
     ap.add_argument("--evaluations", required=True)
     ap.add_argument("--task", required=True)
-    ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--out", required=True)
     ap.add_argument("--command", default="make cpu-recipe")
     ap.add_argument("--wall-seconds", type=float, default=None)
