@@ -18,7 +18,7 @@ def _rollouts(cfg, e) -> None:
                 for name, v in OmegaConf.to_container(e.variants, resolve=True).items() if v]  # null: left out
     spec = EvalSpec(tasks=list(e.tasks), noises=list(e.noises), variants=variants, out_dir=e.out_dir,
                     episodes=e.episodes, seed=e.seed, horizon=e.horizon,
-                    windows=_windows(cfg, e),
+                    windows=noise_windows(cfg),
                     noise_params=OmegaConf.to_container(e.noise_params, resolve=True), workers=e.workers,
                     image_size=e.image_size, videos_per_cell=e.videos_per_cell, experiment=e.experiment,
                     checkpoint=str(e.checkpoint),
@@ -30,9 +30,10 @@ def _rollouts(cfg, e) -> None:
     print(f"{len(table)} cells; results in {e.out_dir}")
 
 
-def _windows(cfg, e) -> dict:
-    """evaluate.windows, else the task config's noise_windows, else the registry's (paper) ones."""
-    windows = OmegaConf.to_container(e.windows, resolve=True) or {}
+def noise_windows(cfg) -> dict:
+    """evaluate.windows, else the task config's noise_windows, else the registry's (paper) ones
+    (also what the rollouts during training use)."""
+    windows = OmegaConf.to_container(cfg.evaluate.windows, resolve=True) if cfg.evaluate.windows else {}
     if cfg.task.name not in windows and cfg.task.get("noise_windows"):
         windows[cfg.task.name] = OmegaConf.to_container(cfg.task.noise_windows, resolve=True)
     return windows

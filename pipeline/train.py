@@ -35,13 +35,12 @@ def _app(cfg) -> None:
 
 def _rollout(cfg, config_cls):
     """train.rollout -> the in-training rollout config (windows and noise as `nostra evaluate` uses)."""
+    from pipeline.evaluate import noise_windows
+
     r = OmegaConf.to_container(cfg.train.rollout, resolve=True)
     if not r.pop("enabled"):
         return None
-    windows = OmegaConf.to_container(cfg.evaluate.windows, resolve=True) or {}
-    if cfg.task.name not in windows and cfg.task.get("noise_windows"):
-        windows[cfg.task.name] = OmegaConf.to_container(cfg.task.noise_windows, resolve=True)
-    return config_cls(task=cfg.task.name, windows=windows, noise_params=OmegaConf.to_container(cfg.noise, resolve=True),
+    return config_cls(task=cfg.task.name, windows=noise_windows(cfg), noise_params=OmegaConf.to_container(cfg.noise, resolve=True),
                       image_size=cfg.profile.image_size, **r)
 
 

@@ -143,3 +143,16 @@ def test_rollouts_during_training_log_success_and_keep_the_best(tmp_path, monkey
         train(TrainSpec(policy="lstm", store=str(s.path), collections=["t"], keys=keys, out_dir=str(tmp_path / "l"),
                         net=small_net("lstm"), seq_len=6, batch_size=2, max_steps=2, num_workers=0, progress=False,
                         val_fraction=0, experiment="t", rollout=rollout))
+
+
+def test_windows_override_from_the_command_line_reaches_evaluation_and_training_rollouts():
+    from hydra import compose, initialize_config_dir
+
+    from pipeline._hydra import CONF_DIR
+    from pipeline.evaluate import noise_windows
+
+    with initialize_config_dir(CONF_DIR, version_base="1.3"):
+        cfg = compose("config", overrides=["task=liftd1", "evaluate.windows={LiftD1: [[30, 60]]}"])
+        default = compose("config", overrides=["task=liftd1"])
+    assert noise_windows(cfg) == {"LiftD1": [[30, 60]]}
+    assert noise_windows(default) == {"LiftD1": [[15, 35], [45, 60]]}  # the task config's
