@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from nostra.sim.noise import check_noise
+from nostra.sim.noise import NoiseSchedule
 from nostra.sim.rollout import EpisodeJob, EpisodeResult, init_worker, work
 from nostra.variants import LABELS, MODES
 ENV_KEYS = ("agentview_image", "robot0_eye_in_hand_image", "agentview_depth", "robot0_eef_pos",
@@ -68,15 +68,20 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 
 
 def validate(spec: EvalSpec) -> None:
-    """Fail before any rollout: unknown task / noise / mode, or a policy the env cannot feed."""
+    """Fail before any rollout: unknown task / noise / mode, bad windows or noise parameters, or a
+    policy the env cannot feed."""
     from nostra.policies import runner_class
     from nostra.policies.checkpoint import read_meta
     from nostra.sim.tasks import get_task
 
     for task in spec.tasks:
-        get_task(task)
-    for noise in spec.noises:
-        check_noise(noise)
+        t = get_task(task)
+        windows = spec.windows.get(task) or spec.windows.get(t.name) or [list(w) for w in t.noise_windows]
+        for noise in spec.noises:
+            try:
+                NoiseSchedule(noise, windows, spec.noise_params)
+            except (ValueError, TypeError) as e:
+                raise ValueError(f"task {t.name}, noise {noise!r}, windows {windows}: {e}") from e
     if not spec.variants:
         raise ValueError("no variants to evaluate")
     for v in spec.variants:

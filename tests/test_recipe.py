@@ -156,3 +156,15 @@ def test_windows_override_from_the_command_line_reaches_evaluation_and_training_
         default = compose("config", overrides=["task=liftd1"])
     assert noise_windows(cfg) == {"LiftD1": [[30, 60]]}
     assert noise_windows(default) == {"LiftD1": [[15, 35], [45, 60]]}  # the task config's
+
+
+def test_bad_windows_fail_before_any_worker_starts(tmp_path):
+    from nostra.evaluation import EvalSpec, validate
+
+    spec = EvalSpec(tasks=["Lift"], noises=["none", "mask"], variants=[], out_dir=str(tmp_path),
+                    windows={"Lift": [[0, 10]]})
+    with pytest.raises(ValueError, match=r"task Lift, noise 'none', windows \[\[0, 10\]\].*0 < start < end"):
+        validate(spec)
+    spec.windows = {"Lift": [[5]]}
+    with pytest.raises(ValueError, match="task Lift"):
+        validate(spec)
