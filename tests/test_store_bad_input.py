@@ -140,8 +140,8 @@ def test_missing_source(tmp_path, store):
 def test_lerobot_old_version(tmp_path, store):
     root = F.write_lerobot(tmp_path / "bad_lr", n=1, image_size=8, video=False)
     info = json.loads((root / "meta/info.json").read_text())
-    (root / "meta/info.json").write_text(json.dumps({**info, "codebase_version": "v2.1"}))
-    fails(store, root, "'codebase_version'", "v2.1", "valid: v3")
+    (root / "meta/info.json").write_text(json.dumps({**info, "codebase_version": "v1.6"}))
+    fails(store, root, "'codebase_version'", "v1.6", "valid: v2.0, v2.1, v3")
 
 
 def test_lerobot_corrupt_parquet(tmp_path, store):

@@ -13,7 +13,7 @@ FORMATS = {
     "lerobot": (lerobot.sniff, lerobot.LeRobotSource),
     "dp_zarr": (dp_zarr.sniff, dp_zarr.DPZarrSource),
 }
-HINT = ("robomimic (HDF5 file with data/demo_N), lerobot (v3 directory with meta/info.json), "
+HINT = ("robomimic (HDF5 file with data/demo_N), lerobot (v2.x or v3 directory with meta/info.json), "
         "dp_zarr (zarr directory or .zip with data/<key> and meta/episode_ends)")
 
 

@@ -1,12 +1,21 @@
-"""LeRobot v3 datasets: ``meta/info.json`` (features, fps, path templates), ``meta/tasks.parquet``,
-``meta/episodes/chunk-XXX/file-XXX.parquet`` (one row per episode: length, tasks, where its rows and
-video segments are), frames in ``data/chunk-XXX/file-XXX.parquet`` (many episodes per file) and
-camera streams either as mp4 segments in ``videos/<key>/chunk-XXX/file-XXX.mp4`` (decoded with
-PyAV) or as PNG bytes inside the parquet ("image" features).
+"""LeRobot datasets, v3 and v2.x.
+
+v3: ``meta/info.json`` (features, fps, path templates), ``meta/tasks.parquet`` (as lerobot writes
+it, the task strings are the pandas index; a ``task`` column reads too), ``meta/episodes/chunk-XXX/
+file-XXX.parquet`` (one row per episode: length, ``tasks``, where its rows and video segments are),
+frames in ``data/chunk-XXX/file-XXX.parquet`` (many episodes per file) and camera streams either
+as mp4s shared by the episodes of a chunk, ``videos/<key>/chunk-XXX/file-XXX.mp4``, each
+episode decoded (PyAV) from ``videos/<key>/from_timestamp`` on, or as PNG bytes inside the parquet
+("image" features). An episode's task string is its ``tasks`` entry, else its frames'
+``task_index`` looked up in the tasks table.
+
+v2.0/v2.1: ``meta/episodes.jsonl``, ``meta/tasks.jsonl``, one parquet per episode
+(``data/chunk-XXX/episode_XXXXXX.parquet``) and one mp4 per episode and camera.
 
 LeRobot keys map to ours by a key map ``{our_key: "feature"}`` where a feature may be sliced,
 ``"observation.state[0:3]"``. Without one: ``action`` -> ``actions``, ``observation.images.<cam>``
 -> ``<cam>_image``, ``observation.image`` -> ``agentview_image``, ``observation.<x>`` -> ``<x>``,
+a vector whose ``names`` are ``<key>.<i>`` (our export's ``observation.state``) -> those keys,
 ``next.reward``/``next.done`` -> rewards/dones."""
 
 from __future__ import annotations
@@ -34,6 +43,8 @@ BOOKKEEPING = {"timestamp", "frame_index", "episode_index", "index", "task_index
 EXTRAS = {"next.reward": "rewards", "next.done": "dones"}
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
+V2_DATA_PATH = "data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet"
+V2_VIDEO_PATH = "videos/chunk-{episode_chunk:03d}/{video_key}/episode_{episode_index:06d}.mp4"
 _SLICE = re.compile(r"^(?P<feat>.+?)(?:\[(?P<a>-?\d*):(?P<b>-?\d*)\])?$")
 
 
@@ -63,6 +74,7 @@ class LeRobotSource:
         self.root = self.path = Path(path)
         self.defaults = defaults or {}
         self.info = self._info()
+        self.v2 = str(self.info["codebase_version"]).startswith("v2")
         self.features: dict = self.info["features"]
         self.fps = float(self.info.get("fps") or 0) or None
         self.map = self._mapping(key_map, keys)
@@ -77,12 +89,13 @@ class LeRobotSource:
             info = json.loads(p.read_text())
         except (OSError, json.JSONDecodeError) as e:
             raise DataError(p, f"cannot read LeRobot info ({e})") from None
+        if not isinstance(info, dict):
+            raise DataError(p, "is not a JSON object")
         version = str(info.get("codebase_version", ""))
-        if not version.startswith("v3"):
-            raise DataError(p, f"LeRobot codebase_version {version!r} is not supported; valid: v3.x "
-                               "(convert older datasets with lerobot's convert_dataset_v21_to_v30)",
-                            key="codebase_version")
-        if "features" not in info:
+        if not version.startswith(("v2", "v3")):
+            raise DataError(p, f"LeRobot codebase_version {version!r} is not supported; valid: v2.0, v2.1, v3.x "
+                               "(convert older datasets with lerobot's conversion scripts)", key="codebase_version")
+        if not isinstance(info.get("features"), dict):
             raise DataError(p, "no 'features'", key="features")
         return info
 
@@ -98,7 +111,9 @@ class LeRobotSource:
                 sl = slice(int(a) if a else None, int(b) if b else None) if m["b"] is not None else None
                 out[ours] = (feat, sl)
         else:
-            out = {k: (f, None) for f, s in self.features.items() if (k := default_key(f, s))}
+            out = {}
+            for f, s in self.features.items():
+                out |= split_by_names(f, s) or ({k: (f, None)} if (k := default_key(f, s)) else {})
         if "actions" not in out:
             raise DataError(self.root / "meta/info.json", "no action feature (map one to 'actions')", key="actions")
         if keys is not None:
@@ -109,22 +124,34 @@ class LeRobotSource:
         return out
 
     def _episodes(self) -> list[dict]:
-        files = sorted((self.root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))
-        if not files:
-            raise DataError(self.root / "meta/episodes", "no episode metadata (chunk-XXX/file-XXX.parquet)")
-        rows = []
-        for f in files:
-            rows += _read_parquet(f).to_pylist()
+        if self.v2:
+            rows = _read_jsonl(self.root / "meta" / "episodes.jsonl")
+            where = self.root / "meta" / "episodes.jsonl"
+        else:
+            where = self.root / "meta" / "episodes"
+            files = sorted(where.glob("chunk-*/file-*.parquet"))
+            if not files:
+                raise DataError(where, "no episode metadata (chunk-XXX/file-XXX.parquet)")
+            rows = []
+            for f in files:
+                rows += _read_parquet(f).to_pylist()
+        for i, r in enumerate(rows):
+            if not isinstance(r, dict) or not isinstance(r.get("episode_index"), int):
+                raise DataError(where, f"row {i} has no integer episode_index", key="episode_index")
         return sorted(rows, key=lambda r: r["episode_index"])
 
     def _tasks(self) -> dict[int, str]:
+        """task_index -> task string, from meta/tasks.parquet (v3) or meta/tasks.jsonl (v2)."""
+        if self.v2:
+            p = self.root / "meta" / "tasks.jsonl"
+            rows = _read_jsonl(p) if p.exists() else []
+            try:
+                return {int(r["task_index"]): str(r["task"]) for r in rows}
+            except (KeyError, TypeError, ValueError) as e:
+                raise DataError(p, f"each line needs task_index and task ({type(e).__name__}: {e})",
+                                key="task") from None
         p = self.root / "meta" / "tasks.parquet"
-        if not p.exists():
-            return {}
-        df = _read_parquet(p).to_pandas()
-        if "task" not in df.columns:
-            df = df.reset_index()
-        return {int(i): str(t) for i, t in zip(df["task_index"], df["task"])}
+        return read_tasks_parquet(p) if p.exists() else {}
 
     @property
     def files(self) -> list[Path]:
@@ -141,10 +168,15 @@ class LeRobotSource:
     # ---- episodes -------------------------------------------------------------------------
     def __iter__(self):
         for row in self.episodes:
-            yield self._episode(row)
+            demo = f"episode_{row['episode_index']}"
+            try:
+                yield self._episode(row, demo)
+            except DataError:
+                raise
+            except (KeyError, IndexError, TypeError, ValueError, OSError, pa.ArrowException) as e:
+                raise DataError(self.root, f"cannot be read ({type(e).__name__}: {e})", demo) from None
 
-    def _episode(self, row: dict) -> Episode:
-        demo = f"episode_{row['episode_index']}"
+    def _episode(self, row: dict, demo: str) -> Episode:
         table = self._rows(row, demo)
         cols: dict[str, np.ndarray] = {}
         out: dict[str, np.ndarray] = {}
@@ -154,17 +186,44 @@ class LeRobotSource:
             out[ours] = cols[feat] if sl is None else cols[feat][:, sl]
         extras = {ours: _column(table, f, self.root, demo) for f, ours in EXTRAS.items() if f in table.column_names}
         extras = {k: v.reshape(len(v)) for k, v in extras.items()}
-        tasks = row.get("tasks") or []
-        raw = {"language": tasks[0] if tasks else "", "task": self.defaults.get("task", "")}
+        raw = {"language": self._language(row, table, demo), "task": self.defaults.get("task", "")}
         actions = out.pop("actions")
         return Episode(demo, actions, out, extras, normalize_meta(raw, self.root, demo, self.defaults))
 
-    def _rows(self, row: dict, demo: str) -> pa.Table:
-        rel = self.info.get("data_path", DATA_PATH).format(
+    def _language(self, row: dict, table: pa.Table, demo: str) -> str:
+        """The episode's task string: the episodes table's ``tasks`` list, else the first frame's
+        ``task_index`` looked up in the tasks table."""
+        tasks = row.get("tasks")
+        if isinstance(tasks, str):
+            return tasks
+        if tasks:
+            return str(tasks[0])
+        if "task_index" not in table.column_names:
+            return ""
+        i = int(table["task_index"][0].as_py())
+        if i not in self.tasks:
+            where = "meta/tasks.jsonl" if self.v2 else "meta/tasks.parquet"
+            raise DataError(self.root / where, f"has no task_index {i} (used by the episode's frames); it has "
+                                               f"{sorted(self.tasks)}", demo, "task_index")
+        return self.tasks[i]
+
+    def _data_path(self, row: dict) -> str:
+        ep = row["episode_index"]
+        if self.v2:
+            return self.info.get("data_path", V2_DATA_PATH).format(
+                episode_chunk=ep // int(self.info.get("chunks_size") or 1000), episode_index=ep)
+        return self.info.get("data_path", DATA_PATH).format(
             chunk_index=row.get("data/chunk_index", 0), file_index=row.get("data/file_index", 0))
+
+    def _rows(self, row: dict, demo: str) -> pa.Table:
+        rel = self._data_path(row)
         if self._table_key != rel:  # many episodes share one file: keep the last one read
             self._table, self._table_key = _read_parquet(self.root / rel), rel
-        t = self._table.filter(pc.equal(self._table["episode_index"], row["episode_index"]))
+        t = self._table
+        if "episode_index" in t.column_names:
+            t = t.filter(pc.equal(t["episode_index"], row["episode_index"]))
+        elif not self.v2:
+            raise DataError(self.root / rel, "no episode_index column", demo, "episode_index")
         if "frame_index" in t.column_names:
             t = t.sort_by("frame_index")
         if t.num_rows != row.get("length", t.num_rows) or t.num_rows == 0:
@@ -177,21 +236,88 @@ class LeRobotSource:
         if spec.get("dtype") == "video":
             return self._video(feat, spec, table, row, demo)
         if feat not in table.column_names:
-            raise DataError(self.root, "feature listed in info.json has no data column", demo, feat)
+            raise DataError(self.root / self._data_path(row), "feature listed in info.json has no data column",
+                            demo, feat)
         if spec.get("dtype") == "image":
             return _images(table[feat], self.root, demo, feat)
         return _column(table, feat, self.root, demo, spec.get("shape"))
 
-    def _video(self, feat: str, spec: dict, table: pa.Table, row: dict, demo: str) -> np.ndarray:
-        if spec.get("info", {}).get("video.is_depth_map"):
-            raise DataError(self.root, "depth-map videos are not supported; store depth as a float feature", demo, feat)
-        rel = self.info.get("video_path", VIDEO_PATH).format(
+    def _video_path(self, feat: str, row: dict) -> Path:
+        ep = row["episode_index"]
+        if self.v2:
+            rel = self.info.get("video_path") or V2_VIDEO_PATH
+            return self.root / rel.format(episode_chunk=ep // int(self.info.get("chunks_size") or 1000),
+                                          video_key=feat, episode_index=ep)
+        return self.root / (self.info.get("video_path") or VIDEO_PATH).format(
             video_key=feat, chunk_index=row.get(f"videos/{feat}/chunk_index", 0),
             file_index=row.get(f"videos/{feat}/file_index", 0))
-        start = float(row.get(f"videos/{feat}/from_timestamp", 0.0))
+
+    def _video(self, feat: str, spec: dict, table: pa.Table, row: dict, demo: str) -> np.ndarray:
+        """Frames of the episode: its frame timestamps, offset by where the episode starts in a
+        shared (v3) file, ``videos/<key>/from_timestamp``."""
+        if spec.get("info", {}).get("video.is_depth_map"):
+            raise DataError(self.root, "depth-map videos are not supported; store depth as a float feature", demo, feat)
+        path = self._video_path(feat, row)
+        start = 0.0 if self.v2 else row.get(f"videos/{feat}/from_timestamp")
+        if start is None:
+            raise DataError(self.root / "meta/episodes", "no from_timestamp for the video", demo,
+                            f"videos/{feat}/from_timestamp")
         ts = table["timestamp"].to_numpy().astype(np.float64) if "timestamp" in table.column_names else \
             np.arange(table.num_rows) / self.fps
-        return decode_frames(self.root / rel, start + ts, self.fps, demo, feat)
+        return decode_frames(path, float(start) + ts, self.fps, demo, feat)
+
+
+def read_tasks_parquet(path: Path) -> dict[int, str]:
+    """lerobot writes ``meta/tasks.parquet`` with pandas from ``DataFrame({"task_index": ...},
+    index=tasks)``: the strings are the index, a column named ``task`` (index named) or
+    ``__index_level_0__`` (unnamed), named in the pandas metadata. A plain ``task`` column reads too."""
+    t = _read_parquet(path)
+    names = t.column_names
+    meta = json.loads((t.schema.metadata or {}).get(b"pandas", b"{}") or b"{}")
+    index_cols = [c for c in meta.get("index_columns", []) if isinstance(c, str)]
+    col = next((c for c in ["task", *index_cols, "__index_level_0__"] if c in names and c != "task_index"), None)
+    if col is None or "task_index" not in names:
+        raise DataError(path, f"needs task strings (a 'task' column or the pandas index) and 'task_index'; it has "
+                              f"columns {names}", key="task" if col is None else "task_index")
+    try:
+        return {int(i): str(s) for i, s in zip(t["task_index"].to_pylist(), t[col].to_pylist())}
+    except (TypeError, ValueError) as e:
+        raise DataError(path, f"task_index is not an integer ({e})", key="task_index") from None
+
+
+def split_by_names(feature: str, spec: dict) -> dict[str, tuple[str, slice]]:
+    """A vector feature whose ``names`` are ``<key>.<i>`` (as our LeRobot export writes
+    ``observation.state``) splits back into those keys."""
+    names = spec.get("names")
+    if spec.get("dtype") in ("video", "image", "string") or not isinstance(names, list) or not names:
+        return {}
+    parts = [str(n).rsplit(".", 1) for n in names]
+    if not all(len(p) == 2 and p[1].isdigit() for p in parts):
+        return {}
+    out, start = {}, 0
+    for i in range(1, len(parts) + 1):
+        if i == len(parts) or parts[i][0] != parts[start][0]:
+            key = parts[start][0]
+            if key in out or [int(p[1]) for p in parts[start:i]] != list(range(i - start)):
+                return {}
+            out[key] = (feature, slice(start, i))
+            start = i
+    return out
+
+
+def _read_jsonl(path: Path) -> list:
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as e:
+        raise DataError(path, f"cannot be read ({e})") from None
+    out = []
+    for i, line in enumerate(lines):
+        if line.strip():
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError as e:
+                raise DataError(path, f"line {i + 1} is not JSON ({e})") from None
+    return out
 
 
 def _read_parquet(path: Path) -> pa.Table:
