@@ -31,7 +31,8 @@ def _app(cfg) -> None:
     try:
         for batch in batches:
             name = store.ingest(batch, name=c.name, fmt=c.format, key_map=_container(c.key_map),
-                                keys=_container(c["keys"]), defaults=_container(c.metadata), progress=c.progress)
+                                keys=_container(c["keys"]), defaults=_container(c.metadata), progress=c.progress,
+                                float32=bool(c.float32), next_obs=bool(c.next_obs))
             info = store.info(name)
             print(f"{name}: {info['num_episodes']} episodes, {info['num_steps']} steps, keys "
                   f"{store.keys(name)} in {store.path}")

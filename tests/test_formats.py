@@ -41,7 +41,10 @@ def test_robomimic_without_images_and_with_extra_keys(tmp_path, ref):
     name = s.ingest(path, progress=False)
     assert s.keys(name) == ["actions", "robot0_eef_pos", "robot0_joint_pos"]
     np.testing.assert_array_equal(s.episode(name, 1)["robot0_eef_pos"], ref[1].obs["robot0_eef_pos"])
-    assert s.array(name, "actions").dtype == np.float32
+    assert s.array(name, "actions").dtype == np.float64  # the source's dtype is kept
+    f32 = s.ingest(path, name="as_f32", float32=True, progress=False)  # unless asked for float32
+    assert s.array(f32, "actions").dtype == np.float32 and s.array(f32, "robot0_eef_pos").dtype == np.float32
+    s.remove(f32)
     row = s.episodes(name).iloc[0]
     assert row["task"] == "PickPlaceCan"  # from env_args when the demo has no task attribute
     assert row["objects"] == [] and row["camera_pose"] == {} and row["masks"] == []

@@ -47,3 +47,100 @@ def test_lerobot_v30_task_index_missing_from_tasks(tmp_path, eps):
     pd.DataFrame({"task_index": [0]}, index=["lift the red cube"]).to_parquet(root / "meta/tasks.parquet")
     with pytest.raises(DataError, match=r"tasks.parquet: episode_1: key 'task_index': has no task_index 1"):
         Store(tmp_path / "store.zarr").ingest(root, key_map=F.LEROBOT_KEY_MAP, progress=False)
+
+
+def theirs_robomimic(path, eps, next_obs=True, empty_valid=True):
+    """A robomimic file as robomimic's dataset_states_to_obs writes it: float64 lowdim obs and
+    actions, next_obs whose last step is the observation after the last action (not a repeat),
+    and masks where ``mask/valid`` may be empty."""
+    import h5py
+    with h5py.File(path, "w") as f:
+        data = f.create_group("data")
+        data.attrs["env_args"] = '{"env_name": "Lift", "type": 1, "env_kwargs": {"control_freq": 20}}'
+        total = 0
+        for i, ep in enumerate(eps):
+            g = data.create_group(f"demo_{i}")
+            g.attrs["num_samples"] = len(ep)
+            g["actions"] = ep.actions.astype(np.float64)
+            g["states"], g["rewards"], g["dones"] = ep.extras["states"], ep.extras["rewards"], ep.extras["dones"]
+            for k, v in ep.obs.items():
+                v = v.astype(np.float64) if v.dtype == np.float32 and v.ndim == 2 else v
+                g[f"obs/{k}"] = v
+                if next_obs:
+                    after = v[-1:] + (1 if v.dtype != np.uint8 else 0)  # the observation after the last action
+                    g[f"next_obs/{k}"] = np.concatenate([v[1:], after.astype(v.dtype)])
+            total += len(ep)
+        data.attrs["total"] = total
+        f["mask/train"] = np.array([f"demo_{i}" for i in range(len(eps))], dtype="S")
+        f["mask/valid"] = np.zeros(0, "S1") if empty_valid else np.array([b"demo_0"])
+    return path
+
+
+def h5_tree(path):
+    import h5py
+    out = {}
+    with h5py.File(path, "r") as f:
+        f.visititems(lambda k, v: out.__setitem__(k, v[()]) if hasattr(v, "shape") else None)
+    return out
+
+
+def test_robomimic_round_trip_keeps_dtypes_next_obs_and_empty_masks(tmp_path):
+    eps = F.make_episodes(2, [6, 5], image_size=8)
+    src = theirs_robomimic(tmp_path / "theirs.hdf5", eps)
+    s = Store(tmp_path / "store.zarr")
+    name = s.ingest(src, progress=False)
+    assert s.array(name, "actions").dtype == np.float64 and s.array(name, "robot0_eef_pos").dtype == np.float64
+    assert s.info(name)["masks"] == ["train", "valid"] and s.info(name)["next_obs"] == "source"
+    out = s.export(name, tmp_path / "back.hdf5", progress=False)
+    a, b = h5_tree(src), h5_tree(out)
+    assert sorted(a) == sorted(b)
+    for k in a:
+        assert a[k].dtype == b[k].dtype, k
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    import h5py
+    with h5py.File(out, "r") as f:
+        assert not f["data"].attrs["next_obs_derived"] and "next_obs_note" not in f["data"].attrs
+        assert f["mask/valid"].shape == (0,)
+
+
+def test_export_says_next_obs_was_derived(tmp_path):
+    import h5py
+    src = theirs_robomimic(tmp_path / "no_next.hdf5", F.make_episodes(2, [6, 5], image_size=8), next_obs=False)
+    s = Store(tmp_path / "store.zarr")
+    name = s.ingest(src, progress=False)
+    assert s.info(name)["next_obs"] == "none"
+    with h5py.File(s.export(name, tmp_path / "back.hdf5", progress=False), "r") as f:
+        assert f["data"].attrs["next_obs_derived"] and "derived" in f["data"].attrs["next_obs_note"]
+        np.testing.assert_array_equal(f["data/demo_0/next_obs/robot0_eef_pos"][-1], f["data/demo_0/obs/robot0_eef_pos"][-1])
+
+
+def test_next_obs_that_is_not_a_shift_is_refused_with_the_way_out(tmp_path):
+    import h5py
+    src = theirs_robomimic(tmp_path / "odd.hdf5", F.make_episodes(1, [6], image_size=8))
+    with h5py.File(src, "a") as f:
+        f["data/demo_0/next_obs/robot0_eef_pos"][2] += 1
+    s = Store(tmp_path / "store.zarr")
+    with pytest.raises(DataError, match=r"demo_0: key 'next_obs/robot0_eef_pos': next_obs is not obs shifted.*"
+                                        r"step 2.*ingest.next_obs=false"):
+        s.ingest(src, progress=False)
+    assert s.info(s.ingest(src, next_obs=False, progress=False))["next_obs"] == "none"
+
+
+def test_same_content_under_another_name_is_not_ingested_again(tmp_path):
+    import shutil
+    src = F.write_robomimic(tmp_path / "lift.hdf5", lengths=[5, 4], image_size=8)
+    copy = shutil.copy(src, tmp_path / "renamed_copy.hdf5")
+    s = Store(tmp_path / "store.zarr")
+    assert s.ingest(src, progress=False) == "lift"
+    assert s.ingest(copy, progress=False) == "lift" and s.collections() == ["lift"]
+
+
+def test_loader_gives_float32_batches_from_float64_collections(tmp_path):
+    from nostra.data import make_loader
+    src = theirs_robomimic(tmp_path / "theirs.hdf5", F.make_episodes(2, [6, 5], image_size=8))
+    s = Store(tmp_path / "store.zarr")
+    name = s.ingest(src, progress=False)
+    loader = make_loader(s, [name], keys=["robot0_eef_pos"], seq_len=4, batch_size=2, num_workers=0)
+    batch = next(iter(loader))
+    assert batch["actions"].dtype.is_floating_point and str(batch["actions"].dtype) == "torch.float32"
+    assert str(batch["obs"]["robot0_eef_pos"].dtype) == "torch.float32"

@@ -160,3 +160,42 @@ def test_dp_zarr_bad_episode_ends(tmp_path, store):
     g = zarr.open_group(path, mode="a")
     g["meta/episode_ends"][:] = [5, 3]
     fails(store, path, "'meta/episode_ends'", "increase strictly")
+
+
+def test_demo_is_a_dataset(tmp_path, store):
+    fails(store, bad_file(tmp_path, lambda f: f["data"].create_dataset("demo_9", data=np.zeros(3))),
+          "demo_9", "'data/demo_9'", "expected a demo group")
+
+
+def test_seed_not_an_integer(tmp_path, store):
+    fails(store, bad_file(tmp_path, lambda f: f["data/demo_1"].attrs.__setitem__("seed", "abc")),
+          "demo_1", "'seed'", "not an integer")
+
+
+def test_lerobot_tasks_without_strings(tmp_path, store):
+    import pandas as pd
+    root = F.write_lerobot(tmp_path / "bad_lr", n=1, image_size=8, video=False)
+    pd.DataFrame({"task_index": [0]}).to_parquet(root / "meta/tasks.parquet", index=False)
+    fails(store, root, "tasks.parquet", "'task'", "needs task strings")
+
+
+def test_lerobot_episodes_without_episode_index(tmp_path, store):
+    import pyarrow.parquet as pq
+    root = F.write_lerobot(tmp_path / "bad_lr", n=2, image_size=8, video=False)
+    p = root / "meta/episodes/chunk-000/file-000.parquet"
+    pq.write_table(pq.read_table(p).drop_columns(["episode_index"]), p)
+    fails(store, root, "meta/episodes", "'episode_index'", "row 0 has no integer episode_index")
+
+
+def test_lerobot_feature_without_data_column(tmp_path, store):
+    import pyarrow.parquet as pq
+    root = F.write_lerobot(tmp_path / "bad_lr", n=2, image_size=8, video=False)
+    p = root / "data/chunk-000/file-000.parquet"
+    pq.write_table(pq.read_table(p).drop_columns(["action"]), p)
+    fails(store, root, "file-000.parquet", "episode_0", "'action'", "has no data column")
+
+
+def test_lerobot_missing_video(tmp_path, store):
+    root = F.write_lerobot(tmp_path / "bad_lr", n=2, image_size=8, video=True)
+    (root / "videos/observation.images.agentview/chunk-000/file-000.mp4").unlink()
+    fails(store, root, "episode_0", "'observation.images.agentview'", "cannot decode video")

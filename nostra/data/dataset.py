@@ -132,7 +132,8 @@ class SequenceDataset(Dataset):
             for k in [*self.keys, "actions"]:
                 arr = self.store.array(c, k)
                 shape = tuple(arr.shape[1:])
-                self.dtypes.setdefault(k, arr.dtype)
+                # batches are float32 for the models; the store keeps the source's float64
+                self.dtypes.setdefault(k, np.dtype(np.float32) if arr.dtype == np.float64 else arr.dtype)
                 if shapes.setdefault(k, shape) != shape:
                     raise CollectionError(f"key {k!r} has per-step shape {shape} in collection {c!r} but "
                                           f"{shapes[k]} in {self.collections[0]!r}")

@@ -24,11 +24,14 @@ EXTRA_KEYS = ("states", "rewards", "dones")
 
 @dataclass
 class Episode:
+    """``next_obs``: only when the source has it, per obs key; readers give every step,
+    ``check_episode`` keeps the last (the others must be obs shifted by one step)."""
     demo_id: str
     actions: np.ndarray
     obs: dict[str, np.ndarray]
     extras: dict[str, np.ndarray] = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
+    next_obs: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -63,15 +66,18 @@ def _coerce(key: str, v, file, demo: str):
     if key == "success":
         return None if v is None else bool(v)
     if key == "seed":
-        return None if v is None or v == "" else int(v)
+        try:
+            return None if v is None or v == "" else int(v)
+        except (TypeError, ValueError):
+            raise DataError(file, f"seed {v!r} is not an integer", demo, key) from None
     if key in ("task", "language", "skill"):
         return str(v)
     return v
 
 
 def check_episode(ep: Episode, file, shapes: dict) -> Episode:
-    """Validate one episode and cast it to the store's dtypes. ``shapes`` (key -> per-step shape)
-    is filled from the first episode; later episodes must agree with it."""
+    """Validate one episode, dtypes kept. ``shapes`` (key -> per-step shape) is filled from the
+    first episode; later episodes must agree with it. next_obs is reduced to its last step."""
     demo = ep.demo_id
     if ep.actions is None:
         raise DataError(file, "missing (every demo needs actions)", demo, "actions")
@@ -85,7 +91,33 @@ def check_episode(ep: Episode, file, shapes: dict) -> Episode:
         if len(v) != n:
             raise DataError(file, f"has {len(v)} steps but actions has {n}", demo, k)
         _check_shape(k, v, file, demo, shapes)
-    return Episode(demo, actions, obs, extras, ep.meta)
+    nxt = {k: _next_last(v, obs, file, demo, k) for k, v in ep.next_obs.items()}
+    return Episode(demo, actions, obs, extras, ep.meta, nxt)
+
+
+def _next_last(v, obs: dict, file, demo: str, key: str) -> np.ndarray:
+    """The step after the last one; the other steps of next_obs must be obs shifted by one."""
+    where = f"next_obs/{key}"
+    if key not in obs:
+        raise DataError(file, f"next_obs has a key that obs lacks; obs has {sorted(obs)}", demo, where)
+    o, v = obs[key], _obs(v, file, demo, where)
+    if len(v) == 1 and len(o) != 1:  # already reduced (the store's own episodes)
+        v = np.concatenate([o[1:], v])
+    if v.shape[1:] != o.shape[1:] or len(v) != len(o):
+        raise DataError(file, f"shape {v.shape} differs from obs {o.shape}", demo, where)
+    same = (v[:-1] == o[1:]).reshape(len(o) - 1, -1).all(1)
+    if not same.all():
+        raise DataError(file, f"next_obs is not obs shifted by one step (first difference at step "
+                              f"{int(np.argmin(same))}); the store keeps next_obs only as that shift plus the "
+                              "last step: ingest with next_obs=false (ingest.next_obs=false) to drop it", demo, where)
+    return v[-1:].astype(o.dtype, copy=False)
+
+
+def as_float32(ep: Episode) -> Episode:
+    """Float lowdim obs and actions as float32 (the store's ``float32`` option)."""
+    f32 = lambda k, v: v.astype(np.float32, copy=False) if kind_of_key(k) == "lowdim" and v.dtype.kind == "f" else v  # noqa: E731
+    return Episode(ep.demo_id, f32("actions", ep.actions), {k: f32(k, v) for k, v in ep.obs.items()}, ep.extras,
+                   ep.meta, {k: f32(k, v) for k, v in ep.next_obs.items()})
 
 
 def _check_shape(key, v, file, demo, shapes):
@@ -113,7 +145,7 @@ def _lowdim(v, file, demo, key) -> np.ndarray:
         v = v[:, None]
     if v.ndim != 2:
         raise DataError(file, f"shape {v.shape}: expected (steps, dim)", demo, key)
-    return v.astype(np.float32, copy=False)
+    return v
 
 
 def _obs(v, file, demo, key) -> np.ndarray:
@@ -133,4 +165,4 @@ def _obs(v, file, demo, key) -> np.ndarray:
         v = v[..., None]
     if v.ndim != 4 or v.shape[-1] != 1:
         raise DataError(file, f"depth must be (steps, H, W, 1), got {v.shape}", demo, key)
-    return v.astype(np.float32, copy=False)
+    return v

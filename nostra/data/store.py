@@ -6,9 +6,14 @@
                                             ``states``/``rewards``/``dones``; time-chunked, Blosc-zstd
     <store>/<collection>/meta/episode_ends  int64, exclusive end of each episode
     <store>/<collection>/meta/episodes      the per-episode table: parquet bytes in a uint8 array
+    <store>/<collection>/next_obs/<key>     (if the source has next_obs) one row per episode: the
+                                            observation after its last step (the other steps of
+                                            next_obs are obs shifted by one)
     <store>/<collection>/zarr.json          attrs: source, format, content hash, env_args, obs keys,
                                             normalisation stats (count/mean/std/min/max per lowdim
-                                            key and actions)
+                                            key and actions), mask names (empty ones too), next_obs
+
+Dtypes are kept as the source has them (float64 stays float64) unless ``float32=True``.
 
 An ingest writes a temporary group beside the store and renames it in at the end, so a crash or
 Ctrl-C leaves the store as it was; ingesting content already held (same content hash) is a no-op.
@@ -34,7 +39,7 @@ import zarr
 from tqdm import tqdm
 from zarr.codecs import BloscCodec
 
-from nostra.data.episode import EXTRA_KEYS, META_DEFAULTS, NESTED, Episode, check_episode
+from nostra.data.episode import EXTRA_KEYS, META_DEFAULTS, NESTED, Episode, as_float32, check_episode
 from nostra.data.errors import CollectionError, DataError
 from nostra.data.formats import open_source, robomimic_hdf5
 from nostra.data.stats import RunningStats, combine
@@ -130,16 +135,22 @@ class Store:
 
     # ---- writing ---------------------------------------------------------------------------
     def ingest(self, source, name: str | None = None, fmt: str = "auto", key_map: dict | None = None,
-               keys: list[str] | None = None, defaults: dict | None = None, progress: bool = True) -> str:
+               keys: list[str] | None = None, defaults: dict | None = None, progress: bool = True,
+               float32: bool = False, next_obs: bool = True) -> str:
         """Read one source (or a list, concatenated) into a new collection; returns its name. A
-        source whose content the store already holds is not read again: that collection's name
-        is returned."""
+        source whose content the store already holds (whatever its file name) is not read again:
+        that collection's name is returned. ``float32``: store float lowdim obs and actions as
+        float32 (default: as the source has them). ``next_obs=False``: ignore a robomimic source's
+        next_obs (export then derives it)."""
         paths = [Path(source)] if isinstance(source, (str, os.PathLike)) else [Path(s) for s in source]
         if not paths:
             raise DataError(self.path, "nothing to ingest: no source paths given")
         defaults = {k: v for k, v in (defaults or {}).items() if v is not None} or None
-        readers = [open_source(p, fmt, key_map or None, keys, defaults) for p in paths]
-        digest = content_hash(readers, {"key_map": key_map or None, "keys": keys, "defaults": defaults})
+        readers = [open_source(p, fmt, key_map or None, keys, defaults, next_obs=next_obs) for p in paths]
+        opts = {"key_map": key_map or None, "keys": keys, "defaults": defaults}
+        opts |= {"float32": True} if float32 else {}
+        opts |= {} if next_obs else {"next_obs": False}
+        digest = content_hash(readers, opts)
         for c in self.collections():
             if self.info(c).get("content_hash") == digest:
                 log.info("%s is already in %s as collection %r", paths[0], self.path, c)
@@ -154,7 +165,7 @@ class Store:
         self._clean_stale()
         tmp = self.path.parent / f".{self.path.name}.ingest-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         try:
-            _write_collection(tmp, readers, digest, progress)
+            _write_collection(tmp, readers, digest, progress, float32)
             self._open_root()
             try:
                 os.rename(tmp, self.path / name)
@@ -171,7 +182,9 @@ class Store:
         shutil.rmtree(trash, ignore_errors=True)
 
     def export(self, name: str, path, next_obs: bool = True, progress: bool = True) -> Path:
-        """Write a collection as a robomimic HDF5 file that peers' tools read."""
+        """Write a collection as a robomimic HDF5 file that peers' tools read: next_obs from the
+        source where it had one, else derived (and said so in ``data.attrs``); every mask, empty
+        ones too."""
         table = self.episodes(name)
         ids = list(table["demo_id"])
         if len(set(ids)) != len(ids) or not all(re.fullmatch(r"demo_\d+", i) for i in ids):
@@ -179,16 +192,23 @@ class Store:
         attrs = self.info(name)
         obs_keys, extra_keys = attrs["obs_keys"], [k for k in EXTRA_KEYS if k in self.keys(name)]
         arrays = {k: self.array(name, k) for k in ["actions", *obs_keys, *extra_keys]}
+        last = self.next_obs_last(name)
 
         def episodes():
-            for demo, row in zip(ids, table.itertuples(index=False)):
+            for i, (demo, row) in enumerate(zip(ids, table.itertuples(index=False))):
                 a, b = int(row.start), int(row.start + row.length)
                 meta = {k: _plain(getattr(row, k)) for k in (*META_DEFAULTS, "masks", "model_file")}
                 yield Episode(demo, arrays["actions"][a:b], {k: arrays[k][a:b] for k in obs_keys},
-                              {k: arrays[k][a:b] for k in extra_keys}, meta)
+                              {k: arrays[k][a:b] for k in extra_keys}, meta, {k: v[i:i + 1] for k, v in last.items()})
 
         return robomimic_hdf5.write(path, episodes(), attrs.get("env_args", {}), total=len(table),
-                                    next_obs=next_obs, progress=progress)
+                                    next_obs=next_obs, progress=progress, mask_names=attrs.get("masks", []))
+
+    def next_obs_last(self, name: str) -> dict[str, zarr.Array]:
+        """{obs key: (episodes, ...) array} of the source's next observation after each episode's
+        last step; empty when the source had no next_obs."""
+        g = self.group(name)
+        return {k: g["next_obs"][k] for k in g["next_obs"].keys()} if "next_obs" in g else {}
 
     def _open_root(self) -> None:
         root = zarr.open_group(self.path, mode="a", zarr_format=3)
@@ -227,28 +247,34 @@ class _Appender:
         self.buf, self.n = ([data[k:]] if k < len(data) else []), len(data) - k
 
 
-def _write_collection(tmp: Path, readers, digest: str, progress: bool) -> None:
+def _write_collection(tmp: Path, readers, digest: str, progress: bool, float32: bool = False) -> None:
     g = zarr.open_group(tmp, mode="w", zarr_format=3)
     writers: dict[str, _Appender] = {}
+    nexts: dict[str, _Appender] = {}
     stats: dict[str, RunningStats] = {}
     shapes: dict = {}
     rows, total = [], 0
     for r in readers:
         for ep in tqdm(r, total=len(r), desc=f"ingest {r.path.name}", disable=not progress):
             ep = check_episode(ep, r.path, shapes)
+            ep = as_float32(ep) if float32 else ep
             arrays = {"actions": ep.actions, **ep.obs, **ep.extras}
             if not writers:
                 writers = {k: _Appender(_create(g, k, v)) for k, v in arrays.items()}
+                nexts = {k: _Appender(_create(g, k, v, "next_obs")) for k, v in ep.next_obs.items()}
                 stats = {k: RunningStats() for k in arrays if k == "actions" or (k in ep.obs and kind_of_key(k) == "lowdim")}
                 obs_keys = list(ep.obs)
             _same_keys(arrays, writers, r.path, ep.demo_id)
+            _same_keys(ep.next_obs, nexts, r.path, ep.demo_id, "next_obs/")
             for k, v in arrays.items():
                 writers[k].add(_cast(v, writers[k].arr.dtype, r.path, ep.demo_id, k))
+            for k, v in ep.next_obs.items():
+                nexts[k].add(_cast(v, nexts[k].arr.dtype, r.path, ep.demo_id, f"next_obs/{k}"))
             for k, s in stats.items():
                 s.update(arrays[k])
             rows.append(_row(len(rows), ep, r, total))
             total += len(ep)
-    for w in writers.values():
+    for w in [*writers.values(), *nexts.values()]:
         w.flush()
     meta = g.require_group("meta")
     meta.create_array("episode_ends", data=np.cumsum([row["length"] for row in rows]).astype(np.int64))
@@ -259,22 +285,24 @@ def _write_collection(tmp: Path, readers, digest: str, progress: bool) -> None:
         "env_args": readers[0].attrs.get("env_args", {}), "obs_keys": obs_keys,
         "num_episodes": len(rows), "num_steps": total, "stats": {k: s.to_dict() for k, s in stats.items()},
         "source_attrs": {k: v for k, v in readers[0].attrs.items() if k != "env_args"},
+        "masks": sorted({m for r in readers for m in getattr(r, "mask_names", [])}),
+        "next_obs": "source" if nexts else "none",
     })
 
 
-def _create(g: zarr.Group, key: str, v: np.ndarray) -> zarr.Array:
+def _create(g: zarr.Group, key: str, v: np.ndarray, group: str = "data") -> zarr.Array:
     c = chunk_len(v.shape[1:], v.dtype)
-    return g.require_group("data").create_array(key, shape=(0, *v.shape[1:]), chunks=(c, *v.shape[1:]),
-                                                dtype=v.dtype, compressors=compressor())
+    return g.require_group(group).create_array(key, shape=(0, *v.shape[1:]), chunks=(c, *v.shape[1:]),
+                                               dtype=v.dtype, compressors=compressor())
 
 
-def _same_keys(arrays: dict, writers: dict, file, demo: str) -> None:
+def _same_keys(arrays: dict, writers: dict, file, demo: str, prefix: str = "") -> None:
     for k in writers:
         if k not in arrays:
-            raise DataError(file, "missing here but present in earlier demos", demo, k)
+            raise DataError(file, "missing here but present in earlier demos", demo, prefix + k)
     for k in arrays:
         if k not in writers:
-            raise DataError(file, "present here but missing in earlier demos", demo, k)
+            raise DataError(file, "present here but missing in earlier demos", demo, prefix + k)
 
 
 def _cast(v: np.ndarray, dtype, file, demo: str, key: str) -> np.ndarray:
@@ -306,11 +334,11 @@ def _plain(v):
 
 def content_hash(readers, options: dict) -> str:
     h = hashlib.sha256(json.dumps(options, sort_keys=True, default=str).encode())
-    for r in readers:
+    for r in readers:  # the bytes, not the name: a copy under another name is the same content
         h.update(r.fmt.encode())
-        root = r.path if r.path.is_dir() else r.path.parent
         for f in r.files:
-            h.update(str(f.relative_to(root)).encode())
+            if r.path.is_dir():  # inside a dataset directory, where a file lies is content
+                h.update(str(f.relative_to(r.path)).encode())
             with open(f, "rb") as fh:
                 for block in iter(lambda: fh.read(1 << 22), b""):
                     h.update(block)

@@ -28,7 +28,7 @@ def detect(path) -> str:
 
 
 def open_source(path, fmt: str = "auto", key_map: dict | None = None, keys: list[str] | None = None,
-                defaults: dict | None = None):
+                defaults: dict | None = None, next_obs: bool = True):
     path = Path(path)
     if fmt == "auto":
         fmt = detect(path)
@@ -40,5 +40,5 @@ def open_source(path, fmt: str = "auto", key_map: dict | None = None, keys: list
     if fmt == "robomimic":
         if key_map:
             raise DataError(path, "a key map applies to lerobot and dp_zarr sources only; use 'keys' to pick obs keys")
-        return cls(path, keys=keys, defaults=defaults)
+        return cls(path, keys=keys, defaults=defaults, next_obs=next_obs)
     return cls(path, key_map=key_map, keys=keys, defaults=defaults)

@@ -2,7 +2,8 @@
 ``num_samples``, ``model_file`` and our per-episode metadata, nested values as JSON strings) with
 ``actions``, ``states``, ``rewards``, ``dones``, ``obs/<key>``, ``next_obs/<key>``; ``mask/<name>``
 lists demo names as byte strings. Any file in this layout reads, not only ours: image keys may be
-missing and extra keys are kept."""
+missing and extra keys are kept. A source's next_obs is kept (it must be obs shifted by one step;
+the step after the last is what the store keeps); every mask name is kept, empty ones too."""
 
 from __future__ import annotations
 
@@ -40,14 +41,18 @@ def _open(path: Path) -> h5py.File:
 class RobomimicSource:
     fmt = FMT
 
-    def __init__(self, path, keys: list[str] | None = None, defaults: dict | None = None):
-        self.path, self.keys, self.defaults = Path(path), keys, defaults or {}
+    def __init__(self, path, keys: list[str] | None = None, defaults: dict | None = None, next_obs: bool = True):
+        self.path, self.keys, self.defaults, self.next_obs = Path(path), keys, defaults or {}, next_obs
         with _open(self.path) as f:
             if "data" not in f or not isinstance(f["data"], h5py.Group):
                 raise DataError(self.path, "no 'data' group: not a robomimic file", key="data")
             self.demos = sorted(f["data"].keys(), key=_natural)
             if not self.demos:
                 raise DataError(self.path, "the 'data' group holds no demos", key="data")
+            for demo in self.demos:
+                if not isinstance(f["data"][demo], h5py.Group):
+                    raise DataError(self.path, "is a dataset, expected a demo group (actions, obs/...)", demo,
+                                    f"data/{demo}")
             self.env_args = _env_args(f["data"].attrs.get("env_args"), self.path)
             self.masks = _masks(f, self.path)
 
@@ -59,13 +64,22 @@ class RobomimicSource:
     def attrs(self) -> dict:
         return {"env_args": self.env_args}
 
+    @property
+    def mask_names(self) -> list[str]:
+        return sorted(self.masks)
+
     def __len__(self) -> int:
         return len(self.demos)
 
     def __iter__(self):
         with _open(self.path) as f:
             for demo in self.demos:
-                yield self._episode(f["data"][demo], demo)
+                try:
+                    yield self._episode(f["data"][demo], demo)
+                except DataError:
+                    raise
+                except (KeyError, IndexError, TypeError, ValueError, OSError, AttributeError) as e:
+                    raise DataError(self.path, f"cannot be read ({type(e).__name__}: {e})", demo) from None
 
     def _episode(self, g, demo: str) -> Episode:
         read = lambda grp, k: _read(grp, k, self.path, demo)  # noqa: E731
@@ -77,12 +91,24 @@ class RobomimicSource:
         if missing:
             raise DataError(self.path, f"obs has no such key; it has {names}", demo, f"obs/{missing[0]}")
         obs = {k: read(obs_g, k) for k in keys}
+        nxt = self._next_obs(g, obs, demo) if self.next_obs else {}
         extras = {k: read(g, k) for k in EXTRA_KEYS if k in g}
         raw = {k: g.attrs[k] for k in (*META_DEFAULTS, "model_file") if k in g.attrs}
         raw["masks"] = [m for m, members in self.masks.items() if demo in members]
         if not raw.get("task") and self.env_args.get("env_name"):
             raw["task"] = self.env_args["env_name"]
-        return Episode(demo, actions, obs, extras, normalize_meta(raw, self.path, demo, self.defaults))
+        return Episode(demo, actions, obs, extras, normalize_meta(raw, self.path, demo, self.defaults), nxt)
+
+    def _next_obs(self, g, obs: dict, demo: str) -> dict:
+        nxt = g.get("next_obs")
+        if nxt is None or not obs:
+            return {}
+        missing = [k for k in obs if k not in nxt]
+        if missing:
+            raise DataError(self.path, f"next_obs lacks obs keys {missing} (it has {sorted(nxt)}); ingest with "
+                                       "next_obs=false (ingest.next_obs=false) to drop next_obs", demo,
+                            f"next_obs/{missing[0]}")
+        return {k: _read(nxt, k, self.path, demo) for k in obs}
 
 
 def _read(g, key: str, path, demo: str) -> np.ndarray:
@@ -108,39 +134,55 @@ def _masks(f, path) -> dict[str, set[str]]:
         return {}
     out = {}
     for name, ds in f["mask"].items():
-        out[name] = {x.decode() if isinstance(x, bytes) else str(x) for x in np.asarray(ds[()]).ravel()}
+        if not isinstance(ds, h5py.Dataset):
+            raise DataError(path, "is a group, expected a dataset of demo names", key=f"mask/{name}")
+        try:
+            out[name] = {x.decode() if isinstance(x, bytes) else str(x) for x in np.asarray(ds[()]).ravel()}
+        except (OSError, TypeError, ValueError, UnicodeDecodeError) as e:
+            raise DataError(path, f"cannot be read as demo names ({e})", key=f"mask/{name}") from None
     return out
 
 
+NEXT_OBS_DERIVED = "next_obs/<key> derived by nostra: obs shifted by one step, the last step repeated (the source had no next_obs)"
+
+
 def write(path, episodes: Iterable[Episode], env_args: dict, total: int | None = None,
-          next_obs: bool = True, progress: bool = True) -> Path:
+          next_obs: bool = True, progress: bool = True, mask_names: Iterable[str] = ()) -> Path:
     """Write episodes as a robomimic file. Written beside the target and renamed at the end, so a
-    failure never leaves a half-written file. ``next_obs`` is each obs shifted by one step (the last
-    step repeated), as peers' loaders expect the group."""
+    failure never leaves a half-written file. ``next_obs`` is each obs shifted by one step, then the
+    episode's ``next_last`` where it has one, else the last step repeated; ``data.attrs``
+    ``next_obs_derived`` says which (and ``next_obs_note`` how). ``mask_names``: masks written even
+    when no demo is in them."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    masks: dict[str, list[str]] = {}
+    masks: dict[str, list[str]] = {m: [] for m in mask_names}
+    derived = False
     try:
         with h5py.File(tmp, "w") as f:
             data = f.create_group("data")
             steps = 0
             for ep in tqdm(episodes, total=total, desc=f"export {path.name}", disable=not progress):
-                _write_demo(data.create_group(ep.demo_id), ep, next_obs)
+                derived |= _write_demo(data.create_group(ep.demo_id), ep, next_obs)
                 steps += len(ep)
                 for m in ep.meta.get("masks", []):
                     masks.setdefault(m, []).append(ep.demo_id)
             data.attrs["total"] = steps
             data.attrs["env_args"] = json.dumps(env_args)
+            if next_obs:
+                data.attrs["next_obs_derived"] = derived
+                if derived:
+                    data.attrs["next_obs_note"] = NEXT_OBS_DERIVED
             for name, demos in masks.items():
-                f.create_dataset(f"mask/{name}", data=np.array(demos, dtype="S"))
+                f.create_dataset(f"mask/{name}", data=np.array(demos, dtype="S") if demos else np.zeros(0, "S1"))
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
     return path
 
 
-def _write_demo(g, ep: Episode, next_obs: bool) -> None:
+def _write_demo(g, ep: Episode, next_obs: bool) -> bool:
+    """Write one demo; True when some next_obs had to be derived."""
     n = len(ep)
     g.attrs["num_samples"] = n
     for k, v in ep.meta.items():
@@ -154,8 +196,13 @@ def _write_demo(g, ep: Episode, next_obs: bool) -> None:
     extras.setdefault("dones", (np.arange(n) == n - 1).astype(np.int64))
     for k, v in extras.items():
         g.create_dataset(k, data=v)
+    derived = False
     for k, v in ep.obs.items():
         opts = {"compression": "gzip", "compression_opts": 4} if v.dtype == np.uint8 else {}
         g.create_dataset(f"obs/{k}", data=v, chunks=True if opts else None, **opts)
         if next_obs:
-            g.create_dataset(f"next_obs/{k}", data=np.concatenate([v[1:], v[-1:]]), chunks=True if opts else None, **opts)
+            last = ep.next_obs.get(k)
+            derived |= last is None
+            last = v[-1:] if last is None else np.asarray(last)[-1:]
+            g.create_dataset(f"next_obs/{k}", data=np.concatenate([v[1:], last]), chunks=True if opts else None, **opts)
+    return derived
