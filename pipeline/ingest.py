@@ -1,4 +1,4 @@
-"""`nostra ingest`: robomimic HDF5 / LeRobot v3 / diffusion_policy zarr -> collections of the zarr store.
+"""`nostra ingest`: robomimic HDF5 / LeRobot v2.x, v3 / diffusion_policy zarr -> collections of the zarr store.
 
     nostra ingest ingest.sources=[data/raw/lift.hdf5]
     nostra ingest ingest.sources=[path/to/lerobot_ds] ingest.name=so100 ingest.metadata.task=Lift

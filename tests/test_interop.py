@@ -144,3 +144,12 @@ def test_loader_gives_float32_batches_from_float64_collections(tmp_path):
     batch = next(iter(loader))
     assert batch["actions"].dtype.is_floating_point and str(batch["actions"].dtype) == "torch.float32"
     assert str(batch["obs"]["robot0_eef_pos"].dtype) == "torch.float32"
+
+
+def test_lerobot_v21(tmp_path, eps):
+    root = X.write_lerobot_v21(tmp_path / "lr21", eps, state_keys=list(F.LOWDIM))
+    assert (root / "videos/chunk-000/observation.images.agentview/episode_000002.mp4").exists()
+    s = Store(tmp_path / "store.zarr")
+    name = s.ingest(root, key_map=F.LEROBOT_KEY_MAP, progress=False)
+    check_lerobot_collection(s, name, eps)
+    assert s.info(name)["source_attrs"]["lerobot_info"]["codebase_version"] == "v2.1"
