@@ -153,3 +153,63 @@ def test_lerobot_v21(tmp_path, eps):
     name = s.ingest(root, key_map=F.LEROBOT_KEY_MAP, progress=False)
     check_lerobot_collection(s, name, eps)
     assert s.info(name)["source_attrs"]["lerobot_info"]["codebase_version"] == "v2.1"
+
+
+def test_export_lerobot_v30_layout_and_round_trip(tmp_path):
+    """robomimic -> store -> LeRobot v3.0 -> store: lowdim, depth and extras exact with their
+    dtypes, video within VIDEO_TOL."""
+    import json
+
+    import pandas as pd
+    import pyarrow.parquet as pq
+    src = F.write_robomimic(tmp_path / "lift.hdf5", lengths=[9, 6], image_size=16)
+    s = Store(tmp_path / "store.zarr")
+    name = s.ingest(src, progress=False)
+    out = s.export(name, tmp_path / "lift_lerobot", format="lerobot", progress=False)
+    files = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
+    assert files == ["data/chunk-000/file-000.parquet", "meta/episodes/chunk-000/file-000.parquet",
+                     "meta/info.json", "meta/stats.json", "meta/tasks.parquet",
+                     "videos/observation.images.agentview/chunk-000/file-000.mp4",
+                     "videos/observation.images.robot0_eye_in_hand/chunk-000/file-000.mp4"]
+    info = json.loads((out / "meta/info.json").read_text())
+    assert info["codebase_version"] == "v3.0" and info["fps"] == 20 and info["robot_type"] == "panda"
+    assert info["features"]["observation.state"]["names"][:4] == ["robot0_eef_pos.0", "robot0_eef_pos.1",
+                                                                  "robot0_eef_pos.2", "robot0_eef_quat.0"]
+    assert info["features"]["observation.images.agentview"]["info"]["video.codec"] == "av1"
+    tasks = pd.read_parquet(out / "meta/tasks.parquet")  # lerobot's load_tasks: the strings are the index
+    assert tasks.index.tolist() == ["lift the red cube"] and tasks.columns.tolist() == ["task_index"]
+    eps = pq.read_table(out / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
+    assert [e["videos/observation.images.agentview/from_timestamp"] for e in eps] == [0.0, 9 / 20]
+    assert eps[1]["dataset_from_index"] == 9 and eps[0]["tasks"] == ["lift the red cube"]
+    stats = json.loads((out / "meta/stats.json").read_text())
+    assert np.array(stats["observation.images.agentview"]["mean"]).shape == (3, 1, 1)
+    assert stats["action"]["count"] == [15]
+
+    back = s.ingest(out, progress=False)  # no key map: observation.state splits back by its names
+    assert s.keys(back) == s.keys(name)
+    for k in s.keys(name):
+        a, b = s.array(name, k), s.array(back, k)
+        assert a.dtype == b.dtype, k
+        if k.endswith("_image"):
+            assert np.abs(a[:].astype(float) - b[:]).mean() < VIDEO_TOL, k
+        else:
+            np.testing.assert_array_equal(a[:], b[:], err_msg=k)
+
+
+def test_lerobot_round_trip_through_the_store(tmp_path, eps):
+    """LeRobot v3.0 (as lerobot writes it) -> store -> LeRobot v3.0: the same frames and tasks."""
+    import pyarrow.parquet as pq
+    src = X.write_lerobot_v30(tmp_path / "theirs", eps, state_keys=list(F.LOWDIM))
+    s = Store(tmp_path / "store.zarr")
+    name = s.ingest(src, key_map=F.LEROBOT_KEY_MAP, progress=False)
+    out = s.export(name, tmp_path / "ours", format="lerobot", progress=False)
+    a = pq.read_table(src / "data/chunk-000/file-000.parquet")
+    b = pq.read_table(out / "data/chunk-000/file-000.parquet")
+    for col in ("action", "observation.state", "timestamp", "frame_index", "episode_index", "index", "task_index"):
+        assert a[col].type == b[col].type, col
+        assert a[col].to_pylist() == b[col].to_pylist(), col
+    again = s.ingest(out, key_map=F.LEROBOT_KEY_MAP, progress=False)
+    assert s.episodes(again)["language"].tolist() == [e.meta["language"] for e in eps]
+    for k in F.RGB_KEYS:  # encoded twice
+        err = np.abs(s.array(again, k)[:].astype(float) - s.array(name, k)[:]).mean()
+        assert err < VIDEO_TOL, (k, err)

@@ -22,6 +22,9 @@ def test_ingest_then_export(tmp_path, monkeypatch, capsys):
     assert main(["export", "export.collection=lift", "export.progress=false", "paths.data=d"]) == 0
     with h5py.File(tmp_path / "d/export/lift.hdf5", "r") as f:
         np.testing.assert_array_equal(f["data/demo_1/actions"][:], s.episode("lift", 1)["actions"])
+    assert main(["export", "export.collection=lift", "export.format=lerobot", "export.progress=false",
+                 "paths.data=d"]) == 0
+    assert (tmp_path / "d/export/lift_lerobot/meta/info.json").is_file()
 
 
 def test_several_sources_into_one_collection(tmp_path, monkeypatch):

@@ -41,7 +41,7 @@ from zarr.codecs import BloscCodec
 
 from nostra.data.episode import EXTRA_KEYS, META_DEFAULTS, NESTED, Episode, as_float32, check_episode
 from nostra.data.errors import CollectionError, DataError
-from nostra.data.formats import open_source, robomimic_hdf5
+from nostra.data.formats import lerobot_v3_writer, open_source, robomimic_hdf5
 from nostra.data.stats import RunningStats, combine
 from nostra.modality import kind_of_key
 
@@ -181,28 +181,51 @@ class Store:
         os.rename(self.path / name, trash)  # atomic: the collection is gone or intact, never half
         shutil.rmtree(trash, ignore_errors=True)
 
-    def export(self, name: str, path, next_obs: bool = True, progress: bool = True) -> Path:
-        """Write a collection as a robomimic HDF5 file that peers' tools read: next_obs from the
-        source where it had one, else derived (and said so in ``data.attrs``); every mask, empty
-        ones too."""
+    def export(self, name: str, path, next_obs: bool = True, progress: bool = True, format: str = "robomimic",
+               fps: float | None = None) -> Path:
+        """Write a collection as a robomimic HDF5 file that peers' tools read (next_obs from the
+        source where it had one, else derived and said so in ``data.attrs``; every mask, empty ones
+        too), or with ``format="lerobot"`` as a LeRobot v3.0 dataset directory (``fps``: default the
+        source's LeRobot fps, else env_args' control_freq)."""
+        if format == "lerobot":
+            return self._export_lerobot(name, path, fps, progress)
+        if format != "robomimic":
+            raise DataError(path, f"unknown export format {format!r}; valid: robomimic, lerobot", key="format")
+        attrs = self.info(name)
+        return robomimic_hdf5.write(path, self._stored_episodes(name, demo_ids=True), attrs.get("env_args", {}),
+                                    total=attrs["num_episodes"], next_obs=next_obs, progress=progress,
+                                    mask_names=attrs.get("masks", []))
+
+    def _export_lerobot(self, name: str, path, fps: float | None, progress: bool) -> Path:
+        attrs = self.info(name)
+        env_args = attrs.get("env_args") or {}
+        kwargs = env_args.get("env_kwargs") or {}
+        fps = fps or (attrs.get("source_attrs", {}).get("lerobot_info") or {}).get("fps") or kwargs.get("control_freq")
+        if not fps:
+            raise DataError(path, f"collection {name!r} does not say its frame rate; pass fps (export.fps=<hz>)",
+                            key="fps")
+        robots = kwargs.get("robots")
+        robot = (robots[0] if isinstance(robots, list) and robots else robots) or \
+            (attrs.get("source_attrs", {}).get("lerobot_info") or {}).get("robot_type")
+        return lerobot_v3_writer.write(path, self._stored_episodes(name), fps=int(round(float(fps))),
+                                       robot_type=str(robot).lower() if robot else None,
+                                       total=attrs["num_episodes"], progress=progress)
+
+    def _stored_episodes(self, name: str, demo_ids: bool = False):
+        """The collection's episodes as readers yield them (next_obs as its last step)."""
         table = self.episodes(name)
         ids = list(table["demo_id"])
-        if len(set(ids)) != len(ids) or not all(re.fullmatch(r"demo_\d+", i) for i in ids):
+        if demo_ids and (len(set(ids)) != len(ids) or not all(re.fullmatch(r"demo_\d+", i) for i in ids)):
             ids = [f"demo_{i}" for i in range(len(table))]
-        attrs = self.info(name)
-        obs_keys, extra_keys = attrs["obs_keys"], [k for k in EXTRA_KEYS if k in self.keys(name)]
+        obs_keys = self.info(name)["obs_keys"]
+        extra_keys = [k for k in EXTRA_KEYS if k in self.keys(name)]
         arrays = {k: self.array(name, k) for k in ["actions", *obs_keys, *extra_keys]}
         last = self.next_obs_last(name)
-
-        def episodes():
-            for i, (demo, row) in enumerate(zip(ids, table.itertuples(index=False))):
-                a, b = int(row.start), int(row.start + row.length)
-                meta = {k: _plain(getattr(row, k)) for k in (*META_DEFAULTS, "masks", "model_file")}
-                yield Episode(demo, arrays["actions"][a:b], {k: arrays[k][a:b] for k in obs_keys},
-                              {k: arrays[k][a:b] for k in extra_keys}, meta, {k: v[i:i + 1] for k, v in last.items()})
-
-        return robomimic_hdf5.write(path, episodes(), attrs.get("env_args", {}), total=len(table),
-                                    next_obs=next_obs, progress=progress, mask_names=attrs.get("masks", []))
+        for i, (demo, row) in enumerate(zip(ids, table.itertuples(index=False))):
+            a, b = int(row.start), int(row.start + row.length)
+            meta = {k: _plain(getattr(row, k)) for k in (*META_DEFAULTS, "masks", "model_file")}
+            yield Episode(demo, arrays["actions"][a:b], {k: arrays[k][a:b] for k in obs_keys},
+                          {k: arrays[k][a:b] for k in extra_keys}, meta, {k: v[i:i + 1] for k, v in last.items()})
 
     def next_obs_last(self, name: str) -> dict[str, zarr.Array]:
         """{obs key: (episodes, ...) array} of the source's next observation after each episode's

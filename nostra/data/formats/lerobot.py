@@ -40,7 +40,7 @@ from nostra.modality import kind_of_key
 
 FMT = "lerobot"
 BOOKKEEPING = {"timestamp", "frame_index", "episode_index", "index", "task_index"}
-EXTRAS = {"next.reward": "rewards", "next.done": "dones"}
+EXTRAS = {"next.reward": "rewards", "next.done": "dones", "states": "states"}
 DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
 VIDEO_PATH = "videos/{video_key}/chunk-{chunk_index:03d}/file-{file_index:03d}.mp4"
 V2_DATA_PATH = "data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet"
@@ -56,7 +56,7 @@ def default_key(feature: str, spec: dict) -> str | None:
     """Our key for a LeRobot feature, or None for bookkeeping and non-numeric columns."""
     if feature == "action":
         return "actions"
-    if feature in BOOKKEEPING or feature.startswith("next.") or spec.get("dtype") == "string":
+    if feature in BOOKKEEPING or feature in EXTRAS or feature.startswith("next.") or spec.get("dtype") == "string":
         return None
     name = feature.removeprefix("observation.")
     if spec.get("dtype") in ("video", "image"):
@@ -185,7 +185,7 @@ class LeRobotSource:
                 cols[feat] = self._feature(feat, table, row, demo)
             out[ours] = cols[feat] if sl is None else cols[feat][:, sl]
         extras = {ours: _column(table, f, self.root, demo) for f, ours in EXTRAS.items() if f in table.column_names}
-        extras = {k: v.reshape(len(v)) for k, v in extras.items()}
+        extras = {k: v.reshape(len(v)) if v.ndim == 2 and v.shape[1] == 1 else v for k, v in extras.items()}
         raw = {"language": self._language(row, table, demo), "task": self.defaults.get("task", "")}
         actions = out.pop("actions")
         return Episode(demo, actions, out, extras, normalize_meta(raw, self.root, demo, self.defaults))
