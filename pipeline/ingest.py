@@ -32,10 +32,13 @@ def _app(cfg) -> None:
         for batch in batches:
             name = store.ingest(batch, name=c.name, fmt=c.format, key_map=_container(c.key_map),
                                 keys=_container(c["keys"]), defaults=_container(c.metadata), progress=c.progress,
-                                float32=bool(c.float32), next_obs=bool(c.next_obs))
+                                float32=bool(c.float32), next_obs=bool(c.next_obs), render=bool(c.render),
+                                render_size=int(c.render_size))
             info = store.info(name)
             print(f"{name}: {info['num_episodes']} episodes, {info['num_steps']} steps, keys "
                   f"{store.keys(name)} in {store.path}")
+            for demo, err in (info.get("source_attrs", {}).get("replay_divergence") or {}).items():
+                print(f"  {demo}: replaying its actions diverges from the recorded states by {err:.4g} at most")
     except DataError as e:
         print(f"nostra ingest: {e}", file=sys.stderr)
         raise SystemExit(1) from None

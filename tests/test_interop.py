@@ -213,3 +213,47 @@ def test_lerobot_round_trip_through_the_store(tmp_path, eps):
     for k in F.RGB_KEYS:  # encoded twice
         err = np.abs(s.array(again, k)[:].astype(float) - s.array(name, k)[:]).mean()
         assert err < VIDEO_TOL, (k, err)
+
+
+@pytest.fixture(scope="module")
+def raw_demo(tmp_path_factory):
+    return X.write_robosuite_raw(tmp_path_factory.mktemp("raw"), episodes=2, steps=12)
+
+
+def test_robosuite_raw_demo_without_render_is_refused_with_the_way(tmp_path, raw_demo):
+    path, _ = raw_demo
+    s = Store(tmp_path / "store.zarr")
+    with pytest.raises(DataError, match=r"demo.hdf5: key 'obs': robosuite raw demos.*ingest.render=true"):
+        s.ingest(path, progress=False)
+    assert s.collections() == []
+
+
+def test_robosuite_raw_demo_rendered(tmp_path, raw_demo, monkeypatch, capsys):
+    from pipeline.cli import main
+    path, seen = raw_demo
+    monkeypatch.chdir(tmp_path)
+    assert main(["ingest", f"ingest.sources=[{path}]", "ingest.render=true", "ingest.render_size=32",
+                 "ingest.name=raw", "ingest.progress=false", "paths.data=d"]) == 0
+    out = capsys.readouterr().out
+    assert "raw: 2 episodes, 24 steps" in out
+    assert "demo_1: replaying its actions diverges from the recorded states by" in out and "demo_2: " in out
+    s = Store(tmp_path / "d/store.zarr")
+    assert s.keys("raw") == sorted(["actions", "states", *F.PAPER_KEYS])
+    info = s.info("raw")
+    assert set(info["source_attrs"]["replay_divergence"]) == {"demo_1", "demo_2"}
+    assert info["env_args"]["env_name"] == "Lift"
+    row = s.episodes("raw").iloc[0]
+    assert row["task"] == "Lift" and row["robots"] == ["Panda"] and row["controller"]["type"] == "BASIC"
+    assert row["model_file"].startswith("<mujoco")
+    for i in range(2):
+        ep = s.episode("raw", i)
+        for k in F.RGB_KEYS:
+            assert ep[k].shape == (12, 32, 32, 3) and ep[k].dtype == np.uint8
+            assert (ep[k].reshape(12, -1).max(1) > 30).all(), f"an all-black {k} frame"
+        depth = ep["agentview_depth"]
+        assert depth.shape == (12, 32, 32, 1) and 0.1 < depth.min() and depth.max() < 10  # metres
+        # the rendered state t+1 is the state reached by action t while collecting
+        match = [e for e in seen if np.allclose(e["states"][0], ep["states"][1])]
+        assert len(match) == 1
+        for k in X.LOWDIM_OBS:
+            np.testing.assert_allclose(ep[k][1:], match[0][k][:-1], atol=1e-6, err_msg=k)

@@ -15,9 +15,9 @@ from nostra.modality import kind_of_key
 # source lacks a field (external data usually does).
 META_DEFAULTS = {
     "task": "", "language": "", "skill": "", "objects": [], "camera_pose": {}, "object_placements": {},
-    "variation": {}, "success": None, "seed": None,
+    "variation": {}, "success": None, "seed": None, "robots": [], "controller": {},
 }
-NESTED = ("objects", "camera_pose", "object_placements", "variation", "masks")
+NESTED = ("objects", "camera_pose", "object_placements", "variation", "masks", "robots", "controller")
 # Per-demo arrays that are not observations; kept so an export is a complete robomimic file.
 EXTRA_KEYS = ("states", "rewards", "dones")
 
@@ -60,7 +60,7 @@ def _coerce(key: str, v, file, demo: str):
         v = [x.decode() if isinstance(x, bytes) else x for x in v.tolist()]
     if key in NESTED and isinstance(v, str):
         try:
-            v = json.loads(v) if v else ([] if key in ("objects", "masks") else {})
+            v = json.loads(v) if v else ([] if key in ("objects", "masks", "robots") else {})
         except json.JSONDecodeError as e:
             raise DataError(file, f"metadata is not valid JSON ({e})", demo, key) from None
     if key == "success":

@@ -4,6 +4,7 @@ installed here); each function says which tool and version it mimics and what it
 
 - ``write_lerobot_v30``: lerobot 0.4.1 (codebase v3.0), ``LeRobotDataset.save_episode``.
 - ``write_lerobot_v21``: lerobot 0.3.3 (codebase v2.1).
+- ``write_robosuite_raw``: robosuite 1.5.2, its own DataCollectionWrapper and gather_demonstrations_as_hdf5.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from nostra.modality import kind_of_key
 
 QUANTILES = {"q01": 0.01, "q10": 0.10, "q50": 0.50, "q90": 0.90, "q99": 0.99}
 TASK_LAYOUTS = ("lerobot", "named_index", "episodes_only", "frames_only")
+LOWDIM_OBS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos")
 
 
 def lerobot_frames(eps: list[Episode], state_keys: list[str]) -> tuple[list[dict], dict]:
@@ -244,3 +246,54 @@ def _jsonl(path: Path, items: list[dict]) -> None:
 def _mkparent(path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     return path
+
+
+def write_robosuite_raw(out_dir, episodes: int = 2, steps: int = 12, seed: int = 0) -> tuple[Path, list[dict]]:
+    """Raw demos written by robosuite 1.5.2's own code, as ``collect_human_demonstrations`` does:
+    ``Lift`` with a Panda and the BASIC controller, wrapped in ``DataCollectionWrapper`` (which
+    writes ``state_*.npz`` and ``model.xml`` per episode), then ``gather_demonstrations_as_hdf5``
+    imported from ``robosuite.scripts.collect_human_demonstrations`` with the script's
+    ``env_info``. Small random actions stand in for the human; ``_check_success`` is patched to
+    True because the script keeps successful demos only.
+
+    Returns the ``demo.hdf5`` path and, per episode, what was seen while collecting: ``states``
+    (after each step) and the proprioception of that state (``sim.forward()`` then robosuite's
+    observables: ``env.step``'s own observations lag the state by one physics substep)."""
+    import contextlib
+    import gc
+    import io
+
+    from nostra.sim.env import import_robosuite
+
+    suite = import_robosuite()
+    from robosuite.controllers import load_composite_controller_config
+    from robosuite.scripts.collect_human_demonstrations import gather_demonstrations_as_hdf5
+    from robosuite.wrappers import DataCollectionWrapper
+
+    out_dir = Path(out_dir)
+    raw_dir = out_dir / "raw"
+    config = {"env_name": "Lift", "robots": ["Panda"],
+              "controller_configs": load_composite_controller_config(controller="BASIC", robot="Panda")}
+    env = suite.make(**config, has_renderer=False, has_offscreen_renderer=False, ignore_done=True,
+                     use_camera_obs=False, reward_shaping=True, control_freq=20)
+    env._check_success = lambda: True
+    env = DataCollectionWrapper(env, str(raw_dir))
+    rng = np.random.default_rng(seed)
+    seen = []
+    with contextlib.redirect_stdout(io.StringIO()):  # the wrapper and the script print per episode
+        for _ in range(episodes):
+            env.reset()
+            ep = {k: [] for k in ("states", *LOWDIM_OBS)}
+            for _ in range(steps):
+                action = np.concatenate([rng.uniform(-0.3, 0.3, 6), [rng.choice([-1.0, 1.0])]])
+                env.step(action)
+                ep["states"].append(env.env.sim.get_state().flatten())
+                env.env.sim.forward()
+                obs = env.env._get_observations(force_update=True)
+                for k in LOWDIM_OBS:
+                    ep[k].append(np.asarray(obs[k]))
+            seen.append({k: np.stack(v) for k, v in ep.items()})
+        env.close()
+        gather_demonstrations_as_hdf5(str(raw_dir), str(out_dir), json.dumps(config))
+    gc.collect()  # the script rebinds its h5py file's name; collecting closes the file
+    return out_dir / "demo.hdf5", seen

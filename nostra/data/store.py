@@ -54,7 +54,8 @@ TABLE_SCHEMA = pa.schema([
     ("start", pa.int64()), ("length", pa.int64()), ("task", pa.string()), ("language", pa.string()),
     ("skill", pa.string()), ("objects", pa.string()), ("camera_pose", pa.string()),
     ("object_placements", pa.string()), ("variation", pa.string()), ("success", pa.bool_()),
-    ("seed", pa.int64()), ("masks", pa.string()), ("model_file", pa.string()),
+    ("seed", pa.int64()), ("masks", pa.string()), ("model_file", pa.string()), ("robots", pa.string()),
+    ("controller", pa.string()),
 ])
 
 
@@ -108,6 +109,8 @@ class Store:
         df = pq.read_table(io.BytesIO(raw)).to_pandas(
             types_mapper={pa.int64(): pd.Int64Dtype(), pa.bool_(): pd.BooleanDtype()}.get)
         for c in NESTED:
+            if c not in df:  # collections ingested before the column existed
+                df[c] = "[]" if c == "robots" else "{}"
             df[c] = df[c].map(json.loads)
         df.insert(0, "collection", name)
         return df
@@ -136,20 +139,23 @@ class Store:
     # ---- writing ---------------------------------------------------------------------------
     def ingest(self, source, name: str | None = None, fmt: str = "auto", key_map: dict | None = None,
                keys: list[str] | None = None, defaults: dict | None = None, progress: bool = True,
-               float32: bool = False, next_obs: bool = True) -> str:
+               float32: bool = False, next_obs: bool = True, render: bool = False, render_size: int = 84) -> str:
         """Read one source (or a list, concatenated) into a new collection; returns its name. A
         source whose content the store already holds (whatever its file name) is not read again:
         that collection's name is returned. ``float32``: store float lowdim obs and actions as
         float32 (default: as the source has them). ``next_obs=False``: ignore a robomimic source's
-        next_obs (export then derives it)."""
+        next_obs (export then derives it). ``render``: robosuite raw demos get their six modalities
+        rendered from the recorded states at ``render_size`` (nostra.sim.raw_demos)."""
         paths = [Path(source)] if isinstance(source, (str, os.PathLike)) else [Path(s) for s in source]
         if not paths:
             raise DataError(self.path, "nothing to ingest: no source paths given")
         defaults = {k: v for k, v in (defaults or {}).items() if v is not None} or None
-        readers = [open_source(p, fmt, key_map or None, keys, defaults, next_obs=next_obs) for p in paths]
+        readers = [open_source(p, fmt, key_map or None, keys, defaults, next_obs=next_obs, render=render,
+                               render_size=render_size) for p in paths]
         opts = {"key_map": key_map or None, "keys": keys, "defaults": defaults}
         opts |= {"float32": True} if float32 else {}
         opts |= {} if next_obs else {"next_obs": False}
+        opts |= {"render_size": int(render_size)} if render else {}
         digest = content_hash(readers, opts)
         for c in self.collections():
             if self.info(c).get("content_hash") == digest:

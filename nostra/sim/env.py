@@ -215,17 +215,7 @@ class SimEnv:
 
     # ---- internals ---------------------------------------------------------------------------
     def _convert(self, raw: dict) -> dict:
-        obs = {}
-        if self.render:
-            for cam in CAMERAS:
-                obs[f"{cam}_image"] = np.ascontiguousarray(raw[f"{cam}_image"], dtype=np.uint8)
-            if self.depth:
-                from robosuite.utils.camera_utils import get_real_depth_map
-
-                obs[DEPTH_KEY] = get_real_depth_map(self.raw.sim, raw[DEPTH_KEY]).astype(np.float32)
-        for key in LOWDIM_KEYS:
-            obs[key] = np.asarray(raw[key], dtype=np.float32)
-        return obs
+        return contract_obs(self.raw.sim, raw, self.render, self.depth)
 
     def _on_new_sim(self) -> None:
         """Tune rendering and remember the pristine model of a freshly compiled sim."""
@@ -263,6 +253,21 @@ class SimEnv:
                 qpos[2] += (self._scale - 1.0) * -obj.bottom_offset[2]
                 self.raw.sim.data.set_joint_qpos(obj.joints[0], qpos)
         self.raw.sim.forward()
+
+
+def contract_obs(sim, raw: dict, render: bool = True, depth: bool = True) -> dict:
+    """robosuite's observations as the six modality keys (depth in metres)."""
+    obs = {}
+    if render:
+        for cam in CAMERAS:
+            obs[f"{cam}_image"] = np.ascontiguousarray(raw[f"{cam}_image"], dtype=np.uint8)
+        if depth:
+            from robosuite.utils.camera_utils import get_real_depth_map
+
+            obs[DEPTH_KEY] = get_real_depth_map(sim, raw[DEPTH_KEY]).astype(np.float32)
+    for key in LOWDIM_KEYS:
+        obs[key] = np.asarray(raw[key], dtype=np.float32)
+    return obs
 
 
 def tune_rendering(sim) -> None:

@@ -28,7 +28,9 @@ def detect(path) -> str:
 
 
 def open_source(path, fmt: str = "auto", key_map: dict | None = None, keys: list[str] | None = None,
-                defaults: dict | None = None, next_obs: bool = True):
+                defaults: dict | None = None, next_obs: bool = True, render: bool = False, render_size: int = 84):
+    """A reader for one source. ``render``: robosuite raw demos (no observations) get their
+    observations rendered from the recorded states (nostra.sim.raw_demos)."""
     path = Path(path)
     if fmt == "auto":
         fmt = detect(path)
@@ -37,6 +39,13 @@ def open_source(path, fmt: str = "auto", key_map: dict | None = None, keys: list
     if not path.exists():
         raise DataError(path, "no such file or directory")
     cls = FORMATS[fmt][1]
+    if fmt == "robomimic" and robomimic_hdf5.is_raw(path) and render:
+        from nostra.sim.raw_demos import RawDemoSource  # imports robosuite: only when asked for
+
+        return RawDemoSource(path, render_size, keys, defaults)
+    if render:
+        raise DataError(path, "ingest.render=true is for robosuite raw demos (states and actions, no observations); "
+                              "this source has observations: ingest it without render", key="render")
     if fmt == "robomimic":
         if key_map:
             raise DataError(path, "a key map applies to lerobot and dp_zarr sources only; use 'keys' to pick obs keys")

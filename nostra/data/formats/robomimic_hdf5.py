@@ -53,6 +53,11 @@ class RobomimicSource:
                 if not isinstance(f["data"][demo], h5py.Group):
                     raise DataError(self.path, "is a dataset, expected a demo group (actions, obs/...)", demo,
                                     f"data/{demo}")
+            first = f["data"][self.demos[0]]
+            if "obs" not in first:
+                if "states" in first:
+                    raise raw_refusal(self.path)
+                raise DataError(self.path, "has no observations (obs/<key>)", self.demos[0], "obs")
             self.env_args = _env_args(f["data"].attrs.get("env_args"), self.path)
             self.masks = _masks(f, self.path)
 
@@ -109,6 +114,25 @@ class RobomimicSource:
                                        "next_obs=false (ingest.next_obs=false) to drop next_obs", demo,
                             f"next_obs/{missing[0]}")
         return {k: _read(nxt, k, self.path, demo) for k in obs}
+
+
+def is_raw(path: Path) -> bool:
+    """robosuite raw demos (collect_human_demonstrations): demos with states and actions, no obs."""
+    try:
+        with h5py.File(path, "r") as f:
+            data = f.get("data")
+            if not isinstance(data, h5py.Group) or not len(data):
+                return False
+            first = data[sorted(data.keys(), key=_natural)[0]]
+            return isinstance(first, h5py.Group) and "obs" not in first and "states" in first
+    except OSError:
+        return False
+
+
+def raw_refusal(path: Path) -> DataError:
+    return DataError(path, "robosuite raw demos (states, actions and model_file; no observations): render the "
+                           f"observations while ingesting: nostra ingest 'ingest.sources=[{path}]' ingest.render=true "
+                           "(ingest.render_size=84 sets the image size)", key="obs")
 
 
 def _read(g, key: str, path, demo: str) -> np.ndarray:
