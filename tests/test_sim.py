@@ -28,7 +28,7 @@ def lift():
 
 
 def test_unknown_task_lists_valid_names():
-    with pytest.raises(ValueError, match="valid tasks: Lift, Stack, PickPlaceCan, NutAssemblySquare, Door"):
+    with pytest.raises(ValueError, match="valid tasks: Lift, Stack, LiftD1, StackD1, PickPlaceCan, NutAssemblySquare, Door"):
         get_task("Lift2")
     with pytest.raises(ValueError, match="unknown task 'nope'"):
         make_env("nope")
