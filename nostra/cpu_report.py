@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> None:
     task = get_task(args.task).name  # unknown task -> the valid ones
     runs, out = Path(args.runs), Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    df = success_rows(runs, task, args.seeds)
+    df = success_rows(runs, args.task, args.seeds)  # evaluation folders are named as the command named the task
     if len(df):
         df.to_csv(out / "success.csv", index=False)
     train_lines, curves = training_rows(runs, task, args.seeds, args.models)

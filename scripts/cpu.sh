@@ -25,8 +25,12 @@ if [ ! -f "$raw" ]; then
   log "generate $raw"
   nostra generate $COMMON generate.collection=${TASK}_cpu
 fi
-log "ingest $raw"
-nostra ingest $COMMON "ingest.sources=[$raw]" ingest.progress=false
+if [ -d "data/store.zarr/${TASK}_cpu" ]; then
+  log "ingest $raw: the store has ${TASK}_cpu"
+else
+  log "ingest $raw"
+  nostra ingest $COMMON "ingest.sources=[$raw]" ingest.progress=false
+fi
 
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 for seed in $SEEDS; do

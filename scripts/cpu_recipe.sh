@@ -43,13 +43,21 @@ train() {  # $1 = run name, $2 = collection, rest: extra overrides
     train.max_minutes=null train.rollout.every=0 train.rollout.final_episodes=0 "$@"
 }
 
-# the baseline: the `make cpu` run at the same step, and its best checkpoint with the state carried
+reuse() {  # $1 = out name, $2 = variant: its clean rollouts from `make cpu`'s best-checkpoint evaluation (not re-run)
+  local from=$RUNS/evaluate/$TASK/s0/best
+  [ -f "$from/success.csv" ] || { echo "run make cpu first: $from is missing" >&2; exit 1; }
+  mkdir -p "$EV/$1/records/$NAME/none"
+  cp "$from"/records/"$NAME"/none/"$2"_seed*.npz "$EV/$1/records/$NAME/none/"
+}
+
+# the baseline: the `make cpu` run at the same step; its best checkpoint with the state reset (the
+# recipe, as `make cpu` evaluated it) and carried
 evaluate base lstm "$BASE/policy.ckpt" "step=$STEPS"
+reuse reset10 lstm
 evaluate carry lstm "$BASE/policy.ckpt" best +evaluate.variants.lstm.rnn_horizon=0
-evaluate reset10 lstm "$BASE/policy.ckpt" best
 NOSTRA=$RUNS/train/pretrain-nostra-$NAME-s0
 if [ -f "$NOSTRA/policy.ckpt" ]; then
-  evaluate nostra_carry nostra "$NOSTRA/policy.ckpt" best +evaluate.variants.nostra.rnn_horizon=0
+  reuse nostra_carry nostra
   evaluate nostra_reset10 nostra "$NOSTRA/policy.ckpt" best +evaluate.variants.nostra.rnn_horizon=10
 fi
 

@@ -19,8 +19,8 @@ def _success(path, rows):
 
 def test_cpu_report(tmp_path):
     runs = tmp_path / "runs"
-    _success(runs / "evaluate/LiftD1/s0/best", [("none", "lstm", 9), ("blind", "lstm", 1), ("none", "nostra_mli", 8)])
-    _success(runs / "evaluate/LiftD1/s0/last", [("none", "lstm", 7)])
+    _success(runs / "evaluate/liftd1/s0/best", [("none", "lstm", 9), ("blind", "lstm", 1), ("none", "nostra_mli", 8)])
+    _success(runs / "evaluate/liftd1/s0/last", [("none", "lstm", 7)])
     run = runs / "train/pretrain-lstm-LiftD1-s0"
     run.mkdir(parents=True)
     (run / "run.json").write_text(json.dumps({"steps": 3000, "wall_seconds": 1800}))
