@@ -151,7 +151,8 @@ class ReplicaCheck(L.Callback):
         mine = torch.tensor([_digest([state[n]]) for n in names], device=pl_module.device)
         every = trainer.strategy.all_gather(mine).reshape(trainer.world_size, len(names))
         differ = [n for i, n in enumerate(names) if not bool((every[:, i] == every[0, i]).all())]
-        self.report.update(world_size=trainer.world_size, replicas_identical=not differ)
+        self.report.update(world_size=trainer.world_size, replicas_identical=not differ,
+                           compared=sorted({n.split('.')[0] for n in names}))  # net, ema_net, ...
         if differ:
             self.report["differing"] = differ[:20]
             rank_zero_warn(f"DDP: the ranks' weights differ at the end of training: {differ[:20]}")
