@@ -57,8 +57,9 @@ class _SpecLauncher(_SubprocessScriptLauncher):
         os.environ["NODE_RANK"] = str(self.cluster_environment.node_rank())
         os.environ["LOCAL_RANK"] = str(self.cluster_environment.local_rank())
         os.environ["WORLD_SIZE"] = f"{self.num_processes * self.num_nodes}"
-        self.spec_file.parent.mkdir(parents=True, exist_ok=True)
-        self.spec_file.write_text(json.dumps(self.spec, indent=2))
+        if self.num_processes > 1:  # what the other ranks run: train() on this spec
+            self.spec_file.parent.mkdir(parents=True, exist_ok=True)
+            self.spec_file.write_text(json.dumps(self.spec, indent=2))
         env = os.environ.copy()
         env["PYTHONPATH"] = os.pathsep.join(p for p in (_CODE_ROOT, env.get("PYTHONPATH")) if p)
         if os.environ.get("PL_GLOBAL_SEED") is None:

@@ -126,6 +126,19 @@ def _module(spec: TrainSpec, modalities, action_dim: int, stats: dict):
     return module
 
 
+class _ResumedStream(L.Callback):
+    """A resumed run continues its epoch from a fresh loader iterator: the sampler's stream is
+    seeded by the step it resumes at too, so it does not replay the windows the epoch began with
+    (the same on every rank, so the ranks' shards still interleave)."""
+
+    def __init__(self, sampler):
+        self.sampler = sampler
+
+    def on_train_start(self, trainer, pl_module) -> None:
+        if hasattr(self.sampler, "resumed_at"):
+            self.sampler.resumed_at = int(trainer.global_step)
+
+
 def train(spec: TrainSpec) -> dict:
     """Run one training flow; returns paths and the tracking summary."""
     if spec.stage not in STAGES:
@@ -158,6 +171,7 @@ def train(spec: TrainSpec) -> dict:
 
         rollouts = RolloutCallback(spec.rollout, spec.policy, out, runner_class(spec.policy).can_imagine)
         callbacks.append(rollouts)
+    callbacks.append(_ResumedStream(loader.sampler))
     replicas = ddp.ReplicaCheck()  # under DDP: ranks draw different windows and end with the same weights
     callbacks.append(replicas)
     max_time = {"minutes": spec.max_minutes} if spec.max_minutes else None

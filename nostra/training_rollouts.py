@@ -6,6 +6,11 @@ processes and noise schedules as ``nostra evaluate``). Success goes to MLflow as
 first noise and variant (clean, closed loop by default) is copied to ``checkpoints/best.ckpt``.
 Early checks use few episodes, the one at the end of training ``final_episodes``, so rollouts stay
 a small share of the wall time; ``rollouts.json`` lists every check with its cost.
+
+Under DDP every rank saves the checkpoint (a collective call; rank 0 writes it), rank 0 alone
+runs the rollouts, logs and writes, and the other ranks wait in a barrier, for at most the
+process group's timeout (``TrainSpec.dist_timeout_minutes``, 6 h by default; Lightning's 30 min
+would be too short for a long final check), then take rank 0's row of results.
 """
 
 from __future__ import annotations

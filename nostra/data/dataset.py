@@ -233,8 +233,9 @@ def dist_world() -> tuple[int, int]:
     return 0, 1
 
 
-def _epoch_seed(seed: int, epoch: int) -> int:
-    return int(np.random.SeedSequence([int(seed) % 2 ** 63, int(epoch)]).generate_state(1, np.uint64)[0])
+def _epoch_seed(seed: int, epoch: int, resumed_at: int = 0) -> int:
+    words = [int(seed) % 2 ** 63, int(epoch)] + ([int(resumed_at)] if resumed_at else [])
+    return int(np.random.SeedSequence(words).generate_state(1, np.uint64)[0])
 
 
 class ShardedSampler(Sampler[int]):
@@ -244,10 +245,12 @@ class ShardedSampler(Sampler[int]):
     each rank draws different windows. Rank and world size are read when iterating (from
     torch.distributed once its process group exists), so a loader built before the trainer starts
     its processes shards all the same; ``rank``/``world_size`` override them. The epoch advances
-    with each pass, or is set by ``set_epoch`` (Lightning calls it at each epoch, also on resume)."""
+    with each pass, or is set by ``set_epoch`` (Lightning calls it at each epoch, also on resume).
+    ``resumed_at``: the step a resumed run starts from. Lightning resumes mid-epoch with a new
+    iterator over the loader; a stream seeded by it too does not replay the epoch's first windows."""
 
     def __init__(self, seed: int = 0, rank: int | None = None, world_size: int | None = None):
-        self.seed, self.epoch = int(seed), 0
+        self.seed, self.epoch, self.resumed_at = int(seed), 0, 0
         if (rank is None) != (world_size is None) or (world_size is not None and not 0 <= rank < world_size):
             raise ValueError(f"rank and world_size go together, with 0 <= rank < world_size; got {rank}, {world_size}")
         self.rank, self.world_size = rank, world_size
@@ -270,7 +273,7 @@ class ShardedSampler(Sampler[int]):
 
     def __iter__(self):
         rank, world = self.world()
-        g = torch.Generator().manual_seed(_epoch_seed(self.seed, self.epoch))
+        g = torch.Generator().manual_seed(_epoch_seed(self.seed, self.epoch, self.resumed_at))
         self.epoch += 1
         return iter(self._stream(self._total(world), g)[rank::world].tolist())
 
