@@ -101,6 +101,16 @@ def trainer_kwargs(kwargs: dict, spec: dict, spec_file: Path, timeout_minutes: f
     return kwargs
 
 
+def make_trainer(kwargs: dict, spec: dict, spec_file: Path, timeout_minutes: float) -> L.Trainer:
+    """lightning.Trainer(**kwargs) through trainer_kwargs; when Lightning itself picks DDP for
+    several devices (strategy 'auto'), the same as strategy='ddp' (nostra's launcher and timeout)."""
+    trainer = L.Trainer(**trainer_kwargs(kwargs, spec, spec_file, timeout_minutes))
+    if (kwargs.get("strategy", "auto") == "auto" and type(trainer.strategy) is DDPStrategy
+            and type(trainer.strategy.launcher) is _SubprocessScriptLauncher):
+        trainer = L.Trainer(**trainer_kwargs({**kwargs, "strategy": "ddp"}, spec, spec_file, timeout_minutes))
+    return trainer
+
+
 @contextmanager
 def session():
     """Leaves the calling process as it found it: the DDP environment variables the launcher sets

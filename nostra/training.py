@@ -176,12 +176,13 @@ def train(spec: TrainSpec) -> dict:
     callbacks.append(replicas)
     max_time = {"minutes": spec.max_minutes} if spec.max_minutes else None
     logger = TrackingLogger()
-    extra = ddp.trainer_kwargs(spec.trainer, asdict(spec), out / "ddp_spec.json", spec.dist_timeout_minutes)
-    trainer = L.Trainer(max_steps=spec.max_steps, max_time=max_time, logger=logger, callbacks=callbacks,
-                        enable_progress_bar=spec.progress, enable_model_summary=False,
-                        log_every_n_steps=max(1, min(10, spec.max_steps // 3)),
-                        val_check_interval=min(spec.val_every, spec.max_steps) if val_loader else None,
-                        limit_val_batches=4, num_sanity_val_steps=0, **extra)
+    kwargs = dict(max_steps=spec.max_steps, max_time=max_time, logger=logger, callbacks=callbacks,
+                  enable_progress_bar=spec.progress, enable_model_summary=False,
+                  log_every_n_steps=max(1, min(10, spec.max_steps // 3)),
+                  val_check_interval=min(spec.val_every, spec.max_steps) if val_loader else None,
+                  limit_val_batches=4, num_sanity_val_steps=0)
+    trainer = ddp.make_trainer({**kwargs, **spec.trainer}, asdict(spec), out / "ddp_spec.json",
+                               spec.dist_timeout_minutes)
     # built on every rank (a distributed run starts its other ranks in trainer.fit); only global rank 0 tracks
     zero = trainer.is_global_zero
     params = {"model": spec.policy, "stage": spec.stage, "seed": spec.seed, "collections": ",".join(spec.collections),

@@ -95,6 +95,26 @@ def test_samplers_shard_by_rank_into_the_single_process_stream(monkeypatch):
         assert list(sampler) == r1[kind], kind
 
 
+def test_ddp_strategies_get_the_long_timeout_and_nostras_launcher(tmp_path):
+    from datetime import timedelta
+
+    from lightning.pytorch.strategies import DDPStrategy
+
+    from nostra.ddp import NostraDDP, trainer_kwargs
+
+    def strategy(name):
+        kw = trainer_kwargs({"strategy": name}, {}, tmp_path / "spec.json", timeout_minutes=90)
+        assert kw["use_distributed_sampler"] is False  # the loaders' samplers shard themselves
+        return kw["strategy"]
+
+    for name in ("ddp", "ddp_find_unused_parameters_true"):
+        assert isinstance(strategy(name), NostraDDP) and strategy(name)._timeout == timedelta(minutes=90)
+    assert strategy("ddp_find_unused_parameters_true")._ddp_kwargs == {"find_unused_parameters": True}
+    spawn = strategy("ddp_spawn")  # not re-launched from a command line: Lightning's launcher, our timeout
+    assert type(spawn) is DDPStrategy and spawn._timeout == timedelta(minutes=90)
+    assert strategy("auto") == "auto"
+
+
 # ---- training ---------------------------------------------------------------------------------
 LSTM_NET = {**small_net("lstm"), "image_aug": "none"}  # deterministic: no augmentation, no sampling
 
@@ -112,7 +132,7 @@ def _losses(run_dir: Path) -> dict[int, float]:
     return {r["step"]: r["metrics"]["train/loss"] for r in records if "train/loss" in r.get("metrics", {})}
 
 
-def test_cli_ddp_matches_the_doubled_batch_tracks_once_and_resumes(store, tmp_path):
+def test_cli_ddp_matches_the_doubled_batch_tracks_once_and_resumes(store, tmp_path, capsys):
     ddp_out, single_out = tmp_path / "ddp", tmp_path / "single"
     args = [f"data.store={store.path}", "data.collections=[target]", f"data.obs_keys=[{','.join(KEYS)}]",
             "model=lstm", "model.net.rnn_hidden=64", "model.net.decoder_hidden=[64,64]", "+model.net.embed_dim=32",
@@ -128,10 +148,12 @@ def test_cli_ddp_matches_the_doubled_batch_tracks_once_and_resumes(store, tmp_pa
     assert len(runs) == 1 and runs["params.world_size"][0] == "2"  # one MLflow run, not one per rank
 
     # one process, batch 4 = 2 ranks x 2, same seed: the same windows in every step
-    single = train(TrainSpec(policy="lstm", store=str(store.path), collections=["target"], keys=KEYS,
-                             out_dir=str(single_out), net={**LSTM_NET, "rnn_horizon": 8}, optim={"lr": 1e-3},
-                             seq_len=8, batch_size=4, max_steps=6, num_workers=0, val_every=3, ckpt_every=3,
-                             progress=False, experiment="single"))
+    def spec(**kw):  # what the command line above asks for
+        return TrainSpec(**{**dict(policy="lstm", store=str(store.path), collections=["target"], keys=KEYS,
+                                   net={**LSTM_NET, "rnn_horizon": 8}, optim={"lr": 1e-3}, seq_len=8, num_workers=0,
+                                   val_every=3, ckpt_every=3, progress=False), **kw})
+
+    single = train(spec(out_dir=str(single_out), batch_size=4, max_steps=6, experiment="single"))
     assert "ddp" not in single
     ddp_losses, single_losses = _losses(ddp_out), _losses(single_out)
     assert ddp_losses.keys() == single_losses.keys() and len(ddp_losses) >= 3
@@ -144,10 +166,10 @@ def test_cli_ddp_matches_the_doubled_batch_tracks_once_and_resumes(store, tmp_pa
     with torch.no_grad():
         assert float(a.loss(batch)["loss"]) == pytest.approx(float(b.loss(batch)["loss"]), rel=LOSS_RTOL)
 
-    # re-run with more steps under DDP: continues from last.ckpt
-    again = _cli(*args, "data.batch_size=2", "train.max_steps=8", cwd=tmp_path)
-    assert "resuming from" in again.stdout
-    assert json.loads((ddp_out / "run.json").read_text())["steps"] == 8
+    # re-run with more steps under DDP (from Python this time, this process rank 0): continues from last.ckpt
+    again = train(spec(out_dir=str(ddp_out), batch_size=2, max_steps=8, experiment="ddp", trainer=DDP))
+    assert "resuming from" in capsys.readouterr().out
+    assert again["steps"] == 8 and json.loads((ddp_out / "run.json").read_text())["steps"] == 8
     assert max(_losses(ddp_out)) > 6
     assert len(search_runs("ddp")) == 2  # one more training, one more run
 
