@@ -34,17 +34,38 @@ def _flat(params: Mapping, prefix: str = "") -> dict[str, str]:
     return out
 
 
+def global_rank() -> int:
+    """This process's rank in a distributed run: torch.distributed's once its process group
+    exists, else Lightning's (set from the launch environment, and by a Trainer when it is built)."""
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        return dist.get_rank()
+    return int(rank_zero_only.rank or 0)
+
+
 class Tracker:
-    """One MLflow run plus a local copy of everything logged to it."""
+    """One MLflow run plus a local copy of everything logged to it.
+
+    In a distributed run only global rank 0 tracks: on any other rank (``rank``, by default
+    ``global_rank()``) the tracker is inert: no MLflow run, no local file, every call a no-op."""
 
     def __init__(self, experiment: str, run_name: str, local_dir: str | os.PathLike, params: Mapping | None = None,
-                 tags: Mapping | None = None, parent_run_id: str | None = None, uri: str | None = None):
+                 tags: Mapping | None = None, parent_run_id: str | None = None, uri: str | None = None,
+                 rank: int | None = None):
         self.local_dir = Path(local_dir)
-        self.local_dir.mkdir(parents=True, exist_ok=True)
         self.local_file = self.local_dir / "metrics.jsonl"
         self.uri, self.failure, self.run_id, self.client = uri or tracking_uri(), None, None, None
+        self.rank = global_rank() if rank is None else int(rank)
+        if not self.active:
+            return
+        self.local_dir.mkdir(parents=True, exist_ok=True)
         self._guard(self._start, experiment, run_name, dict(tags or {}), parent_run_id)
         self.log_params(params or {})
+
+    @property
+    def active(self) -> bool:
+        return self.rank == 0
 
     def _start(self, experiment, run_name, tags, parent_run_id):
         from mlflow.tracking import MlflowClient
@@ -57,7 +78,7 @@ class Tracker:
         self.run_id = self.client.create_run(exp_id, run_name=run_name, tags=tags).info.run_id
 
     def _guard(self, fn, *args) -> None:
-        if self.failure is not None:
+        if self.failure is not None or not self.active:
             return
         try:
             fn(*args)
@@ -67,6 +88,8 @@ class Tracker:
                         self.local_file)
 
     def _local(self, record: dict) -> None:
+        if not self.active:
+            return
         with open(self.local_file, "a") as f:
             f.write(json.dumps(record, default=str) + "\n")
 
@@ -89,6 +112,8 @@ class Tracker:
         self._guard(lambda: self.client.log_artifact(self.run_id, str(path)))
 
     def finish(self, status: str = "FINISHED") -> str:
+        if not self.active:
+            return f"rank {self.rank}: rank 0 tracks this run"
         self._guard(lambda: self.client.set_terminated(self.run_id, status))
         if self.failure is None:
             return f"tracked in MLflow run {self.run_id} at {self.uri}"
@@ -111,9 +136,9 @@ def _metric(k, v, ts, step):
 class TrackingLogger(Logger):
     """Lightning logger over a Tracker."""
 
-    def __init__(self, tracker: Tracker):
+    def __init__(self, tracker: Tracker | None = None):
         super().__init__()
-        self.tracker = tracker
+        self.tracker = tracker  # may be set after the Trainer is built (its global rank picks the tracker)
 
     @property
     def name(self) -> str:
@@ -121,15 +146,17 @@ class TrackingLogger(Logger):
 
     @property
     def version(self) -> str:
-        return self.tracker.run_id or "local"
+        return (self.tracker and self.tracker.run_id) or "local"
 
     @rank_zero_only
     def log_hyperparams(self, params: Any, *args, **kwargs) -> None:
-        self.tracker.log_params({f"hparams.{k}": v for k, v in dict(params).items()})
+        if self.tracker is not None:
+            self.tracker.log_params({f"hparams.{k}": v for k, v in dict(params).items()})
 
     @rank_zero_only
     def log_metrics(self, metrics: Mapping[str, float], step: int | None = None) -> None:
-        self.tracker.log_metrics({k: v for k, v in metrics.items() if k != "epoch"}, step)
+        if self.tracker is not None:
+            self.tracker.log_metrics({k: v for k, v in metrics.items() if k != "epoch"}, step)
 
 
 def search_runs(experiment: str, uri: str | None = None):

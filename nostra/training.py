@@ -9,12 +9,13 @@ import hashlib
 import json
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import lightning as L
 from lightning.pytorch.callbacks import ModelCheckpoint
 
+from nostra import ddp
 from nostra.data.dataset import make_loader, split_episodes
 from nostra.data.store import Store
 from nostra.policies import policy_module
@@ -57,6 +58,7 @@ class TrainSpec:
     params: dict = field(default_factory=dict)  # extra MLflow params (task, profile, ...)
     parent_run_id: str | None = None
     trainer: dict = field(default_factory=dict)  # extra lightning.Trainer kwargs (devices, strategy, ...)
+    dist_timeout_minutes: float = 360  # DDP process-group timeout: ranks wait this long for rank 0's rollouts
     rollout: RolloutConfig | None = None  # in-training rollouts and the best checkpoint (None: off)
 
 
@@ -124,6 +126,19 @@ def _module(spec: TrainSpec, modalities, action_dim: int, stats: dict):
     return module
 
 
+class _ResumedStream(L.Callback):
+    """A resumed run continues its epoch from a fresh loader iterator: the sampler's stream is
+    seeded by the step it resumes at too, so it does not replay the windows the epoch began with
+    (the same on every rank, so the ranks' shards still interleave)."""
+
+    def __init__(self, sampler):
+        self.sampler = sampler
+
+    def on_train_start(self, trainer, pl_module) -> None:
+        if hasattr(self.sampler, "resumed_at"):
+            self.sampler.resumed_at = int(trainer.global_step)
+
+
 def train(spec: TrainSpec) -> dict:
     """Run one training flow; returns paths and the tracking summary."""
     if spec.stage not in STAGES:
@@ -145,11 +160,6 @@ def train(spec: TrainSpec) -> dict:
                                  0, episodes=val_eps, shuffle=False)
 
     out = Path(spec.out_dir)
-    params = {"model": spec.policy, "stage": spec.stage, "seed": spec.seed, "collections": ",".join(spec.collections),
-              "num_demos": spec.num_demos, "manifest_hash": manifest_hash, "max_steps": spec.max_steps,
-              "init_from": spec.init_from, **spec.params}
-    tracker = Tracker(spec.experiment, spec.run_name or f"{spec.stage}-{spec.policy}", out, params,
-                      tags={"stage": spec.stage}, parent_run_id=spec.parent_run_id)
     callbacks = [ModelCheckpoint(dirpath=out / "checkpoints", save_last=True, every_n_train_steps=spec.ckpt_every,
                                  save_top_k=0)]
     if spec.keep_every:
@@ -161,30 +171,48 @@ def train(spec: TrainSpec) -> dict:
 
         rollouts = RolloutCallback(spec.rollout, spec.policy, out, runner_class(spec.policy).can_imagine)
         callbacks.append(rollouts)
+    callbacks.append(_ResumedStream(loader.sampler))
+    replicas = ddp.ReplicaCheck()  # under DDP: ranks draw different windows and end with the same weights
+    callbacks.append(replicas)
     max_time = {"minutes": spec.max_minutes} if spec.max_minutes else None
-    trainer = L.Trainer(max_steps=spec.max_steps, max_time=max_time, logger=TrackingLogger(tracker), callbacks=callbacks,
-                        enable_progress_bar=spec.progress, enable_model_summary=False,
-                        log_every_n_steps=max(1, min(10, spec.max_steps // 3)),
-                        val_check_interval=min(spec.val_every, spec.max_steps) if val_loader else None,
-                        limit_val_batches=4, num_sanity_val_steps=0, **spec.trainer)
+    logger = TrackingLogger()
+    kwargs = dict(max_steps=spec.max_steps, max_time=max_time, logger=logger, callbacks=callbacks,
+                  enable_progress_bar=spec.progress, enable_model_summary=False,
+                  log_every_n_steps=max(1, min(10, spec.max_steps // 3)),
+                  val_check_interval=min(spec.val_every, spec.max_steps) if val_loader else None,
+                  limit_val_batches=4, num_sanity_val_steps=0)
+    trainer = ddp.make_trainer({**kwargs, **spec.trainer}, asdict(spec), out / "ddp_spec.json",
+                               spec.dist_timeout_minutes)
+    # built on every rank (a distributed run starts its other ranks in trainer.fit); only global rank 0 tracks
+    zero = trainer.is_global_zero
+    params = {"model": spec.policy, "stage": spec.stage, "seed": spec.seed, "collections": ",".join(spec.collections),
+              "num_demos": spec.num_demos, "manifest_hash": manifest_hash, "max_steps": spec.max_steps,
+              "init_from": spec.init_from, "world_size": trainer.world_size, **spec.params}
+    tracker = Tracker(spec.experiment, spec.run_name or f"{spec.stage}-{spec.policy}", out, params,
+                      tags={"stage": spec.stage}, parent_run_id=spec.parent_run_id, rank=trainer.global_rank)
+    logger.tracker = tracker
     last = out / "checkpoints" / "last.ckpt"
     resume = str(last) if spec.resume and last.is_file() else None
-    if resume:
+    if resume and zero:
         print(f"resuming from {resume}")
     status, final = "FAILED", out / "policy.ckpt"
-    try:
-        trainer.fit(module, loader, val_loader, ckpt_path=resume)
-        trainer.save_checkpoint(final)
-        status = "FINISHED"
-    finally:
-        tracker.log_artifact(out / "metrics.jsonl")
-        summary = tracker.finish(status)
+    with ddp.session():
+        try:
+            trainer.fit(module, loader, val_loader, ckpt_path=resume)
+            trainer.save_checkpoint(final)  # collective under DDP: every rank calls it, rank 0 writes
+            status = "FINISHED"
+        finally:
+            tracker.log_artifact(out / "metrics.jsonl")
+            summary = tracker.finish(status)
     result = {"checkpoint": str(final), "run_id": tracker.run_id, "tracking": summary, "manifest_hash": manifest_hash,
               "steps": int(trainer.global_step), "train_episodes": len(train_eps), "val_episodes": len(val_eps),
               "wall_seconds": round(time.time() - start, 1)}
+    if replicas.report:
+        result["ddp"] = replicas.report
     if rollouts is not None:
         result["rollouts"] = rollouts.summary()
         result["best_checkpoint"] = str(out / "checkpoints" / "best.ckpt")
-    (out / "run.json").write_text(json.dumps(result, indent=2))
-    print(summary)
+    if zero:
+        (out / "run.json").write_text(json.dumps(result, indent=2))
+        print(summary)
     return result

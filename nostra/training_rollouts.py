@@ -6,6 +6,11 @@ processes and noise schedules as ``nostra evaluate``). Success goes to MLflow as
 first noise and variant (clean, closed loop by default) is copied to ``checkpoints/best.ckpt``.
 Early checks use few episodes, the one at the end of training ``final_episodes``, so rollouts stay
 a small share of the wall time; ``rollouts.json`` lists every check with its cost.
+
+Under DDP every rank saves the checkpoint (a collective call; rank 0 writes it), rank 0 alone
+runs the rollouts, logs and writes, and the other ranks wait in a barrier, for at most the
+process group's timeout (``TrainSpec.dist_timeout_minutes``, 6 h by default; Lightning's 30 min
+would be too short for a long final check), then take rank 0's row of results.
 """
 
 from __future__ import annotations
@@ -88,8 +93,7 @@ class RolloutCallback(L.Callback):
 
         step, start = trainer.global_step, time.time()
         path = self.out / "checkpoints" / f"step={step}.ckpt"
-        if trainer.is_global_zero:
-            trainer.save_checkpoint(path)
+        trainer.save_checkpoint(path)  # collective under DDP: every rank calls it, rank 0 writes
         row = {"step": step, "episodes": episodes, "checkpoint": path.name, "success": {}}
         if trainer.is_global_zero:
             cells = [(n, m) for n in self.cfg.noises for m in self.cfg.modes]
@@ -111,16 +115,20 @@ class RolloutCallback(L.Callback):
             row["seconds"] = round(time.time() - start, 1)
             row["wall_seconds"] = round(time.time() - self.started, 1)
             if row["score"] >= self.best:  # ties go to the later, longer-trained checkpoint
-                self.best = row["score"]
                 shutil.copyfile(path, self.out / "checkpoints" / "best.ckpt")
                 row["best"] = True
             for logger in trainer.loggers:
                 logger.log_metrics({**metrics, "rollout/seconds": row["seconds"]}, step=step)
-            self.history.append(row)
-            self.log_path.write_text(json.dumps(self.history, indent=2))
+            self.log_path.write_text(json.dumps(self.history + [row], indent=2))
             print(f"rollouts at step {step}: " + ", ".join(f"{k} {v['rate']:.0%}" for k, v in row["success"].items())
                   + f" ({episodes} episodes, {row['seconds']:.0f} s)" + (" best" if row.get("best") else ""))
-        trainer.strategy.barrier("rollouts")  # other ranks wait for rank 0's rollouts
+        # under DDP the other ranks wait here for rank 0's rollouts (the process group's timeout is
+        # TrainSpec.dist_timeout_minutes), then take its row: every rank keeps the same history, so
+        # all of them make the same decisions in _done() and enter the collective calls together
+        trainer.strategy.barrier("rollouts")
+        row = trainer.strategy.broadcast(row, src=0)
+        self.history.append(row)
+        self.best = max(self.best, row["score"])
         return row
 
     def _done(self, step: int, episodes: int | None = None) -> bool:

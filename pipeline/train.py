@@ -29,7 +29,8 @@ def _app(cfg) -> None:
         cotrain_ratio=t.cotrain_ratio, seed=cfg.seed, resume=t.resume, progress=t.progress,
         experiment=t.experiment, run_name=t.run_name, parent_run_id=t.parent_run_id,
         params={"task": cfg.task.name, "profile": cfg.profile.name},
-        trainer=OmegaConf.to_container(t.trainer, resolve=True), rollout=_rollout(cfg, RolloutConfig))
+        trainer=OmegaConf.to_container(t.trainer, resolve=True),
+        dist_timeout_minutes=t.dist_timeout_minutes, rollout=_rollout(cfg, RolloutConfig))
     train(spec)
 
 

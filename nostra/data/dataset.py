@@ -21,7 +21,7 @@ import numcodecs.blosc as blosc
 import numpy as np
 import torch
 import zarr
-from torch.utils.data import DataLoader, Dataset, RandomSampler, Sampler, SequentialSampler, default_collate, get_worker_info
+from torch.utils.data import DataLoader, Dataset, Sampler, default_collate, get_worker_info
 from zarr.codecs import BloscCodec, BytesCodec
 from zarr.codecs.bytes import Endian
 from zarr.storage import LocalStore
@@ -226,12 +226,65 @@ class SequenceDataset(Dataset):
         return state
 
 
-class MixtureSampler(Sampler[int]):
+def dist_world() -> tuple[int, int]:
+    """(rank, world size) in torch.distributed's default process group; (0, 1) outside one."""
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return torch.distributed.get_rank(), torch.distributed.get_world_size()
+    return 0, 1
+
+
+def _epoch_seed(seed: int, epoch: int, resumed_at: int = 0) -> int:
+    words = [int(seed) % 2 ** 63, int(epoch)] + ([int(resumed_at)] if resumed_at else [])
+    return int(np.random.SeedSequence(words).generate_state(1, np.uint64)[0])
+
+
+class ShardedSampler(Sampler[int]):
+    """An index stream fixed by (seed, epoch) alone, sharded over the ranks of a distributed run:
+    rank r of w yields the stream's elements r, r + w, r + 2w, ... So the w ranks' k-th batches
+    together are exactly the k-th batch of one process drawing with w times the batch size, and
+    each rank draws different windows. Rank and world size are read when iterating (from
+    torch.distributed once its process group exists), so a loader built before the trainer starts
+    its processes shards all the same; ``rank``/``world_size`` override them. The epoch advances
+    with each pass, or is set by ``set_epoch`` (Lightning calls it at each epoch, also on resume).
+    ``resumed_at``: the step a resumed run starts from. Lightning resumes mid-epoch with a new
+    iterator over the loader; a stream seeded by it too does not replay the epoch's first windows."""
+
+    def __init__(self, seed: int = 0, rank: int | None = None, world_size: int | None = None):
+        self.seed, self.epoch, self.resumed_at = int(seed), 0, 0
+        if (rank is None) != (world_size is None) or (world_size is not None and not 0 <= rank < world_size):
+            raise ValueError(f"rank and world_size go together, with 0 <= rank < world_size; got {rank}, {world_size}")
+        self.rank, self.world_size = rank, world_size
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def world(self) -> tuple[int, int]:
+        return (self.rank, self.world_size) if self.rank is not None else dist_world()
+
+    def _total(self, world: int) -> int:
+        """Length of the whole stream the ranks share."""
+        raise NotImplementedError
+
+    def _stream(self, n: int, g: torch.Generator) -> torch.Tensor:
+        raise NotImplementedError
+
+    def __len__(self) -> int:
+        return self._total(self.world()[1]) // self.world()[1]
+
+    def __iter__(self):
+        rank, world = self.world()
+        g = torch.Generator().manual_seed(_epoch_seed(self.seed, self.epoch, self.resumed_at))
+        self.epoch += 1
+        return iter(self._stream(self._total(world), g)[rank::world].tolist())
+
+
+class MixtureSampler(ShardedSampler):
     """Draws a collection by its weight, then a window uniformly within it; memory is per
-    collection, not per window."""
+    collection, not per window. Each rank draws ``num_samples`` per epoch."""
 
     def __init__(self, ranges: dict[str, tuple[int, int]], weights: dict[str, float], num_samples: int,
-                 generator: torch.Generator | None = None):
+                 seed: int = 0, rank: int | None = None, world_size: int | None = None):
+        super().__init__(seed, rank, world_size)
         unknown = set(weights) - set(ranges)
         if unknown:
             raise CollectionError(f"weights given for {sorted(unknown)}, which are not read; collections: {list(ranges)}")
@@ -243,16 +296,45 @@ class MixtureSampler(Sampler[int]):
         self.lo = torch.tensor([ranges[c][0] for c in names])
         self.size = torch.tensor([ranges[c][1] - ranges[c][0] for c in names])
         self.p = torch.tensor([float(weights[c]) for c in names], dtype=torch.float64)
-        self.num_samples, self.generator = int(num_samples), generator
+        self.num_samples = int(num_samples)
 
-    def __len__(self) -> int:
-        return self.num_samples
+    def _total(self, world: int) -> int:
+        return self.num_samples * world
 
-    def __iter__(self):
-        which = torch.multinomial(self.p, self.num_samples, replacement=True, generator=self.generator)
-        u = torch.rand(self.num_samples, generator=self.generator, dtype=torch.float64)
-        idx = self.lo[which] + (u * self.size[which]).long().clamp_max(self.size[which] - 1)
-        return iter(idx.tolist())
+    def _stream(self, n, g):
+        which = torch.multinomial(self.p, n, replacement=True, generator=g)
+        u = torch.rand(n, generator=g, dtype=torch.float64)
+        return self.lo[which] + (u * self.size[which]).long().clamp_max(self.size[which] - 1)
+
+
+class WindowSampler(ShardedSampler):
+    """Windows ``0..n-1``: drawn uniformly with replacement, ``num_samples`` per rank and epoch
+    (``replacement=True``); or one pass over all of them per epoch, shared by the ranks, shuffled
+    (``shuffle=True``) or in order; a pass is padded by wrapping around so that every rank gets
+    the same number of windows (as torch's DistributedSampler does)."""
+
+    def __init__(self, n: int, shuffle: bool = True, replacement: bool = False, num_samples: int | None = None,
+                 seed: int = 0, rank: int | None = None, world_size: int | None = None):
+        super().__init__(seed, rank, world_size)
+        if replacement and not shuffle:
+            raise ValueError("drawing with replacement is random: replacement=True needs shuffle=True")
+        if replacement and not num_samples:
+            raise ValueError("drawing with replacement needs num_samples (per rank and epoch)")
+        if num_samples is not None and not replacement:
+            raise ValueError("num_samples is for drawing with replacement; a pass without it covers all windows")
+        self.n, self.shuffle, self.replacement = int(n), bool(shuffle), bool(replacement)
+        self.num_samples = int(num_samples) if replacement else None
+
+    def _total(self, world: int) -> int:
+        if self.replacement:
+            return self.num_samples * world
+        return -(-self.n // world) * world
+
+    def _stream(self, n, g):
+        if self.replacement:
+            return torch.randint(self.n, (n,), generator=g)
+        order = torch.randperm(self.n, generator=g) if self.shuffle else torch.arange(self.n)
+        return order.repeat(-(-n // self.n))[:n]
 
 
 def _worker_init(_):
@@ -270,19 +352,23 @@ def make_loader(store, collections: Iterable[str] | dict[str, float] | None = No
                 seed: int = 0, cache_mb: float = 64, drop_last: bool = False) -> DataLoader:
     """A DataLoader of ``{"obs": {key: (B,T,...)}, "actions": (B,T,A), "pad_mask": (B,T)}``.
     ``collections`` may be a dict of mixture weights; ``episodes`` a list of (collection, episode)
-    pairs (or a manifest DataFrame with those columns) restricting the windows."""
+    pairs (or a manifest DataFrame with those columns) restricting the windows.
+
+    Windows come from a sampler that shards itself over the ranks of a distributed run (see
+    ``ShardedSampler``): with ``num_samples`` (or mixture weights) each rank draws ``num_samples``
+    windows per epoch, so an epoch has as many steps as in one process; without, the ranks share
+    one pass over the windows. Lightning must not replace it (the trainer's
+    ``use_distributed_sampler=False``, as ``nostra.training`` sets)."""
     if isinstance(collections, dict):
         weights, collections = dict(collections), list(collections)
     ds = SequenceDataset(store, collections, keys, seq_len, pad, episodes, cache_mb)
     if len(ds) == 0:
         raise ValueError(f"no windows of length {seq_len} (pad={pad}) in collections {ds.collections}")
-    g = torch.Generator().manual_seed(seed)
     if weights is not None:
-        sampler = MixtureSampler(ds.ranges, weights, num_samples or len(ds), g)
-    elif shuffle:
-        sampler = RandomSampler(ds, replacement=num_samples is not None, num_samples=num_samples, generator=g)
+        sampler = MixtureSampler(ds.ranges, weights, num_samples or len(ds), seed)
     else:
-        sampler = SequentialSampler(ds)
+        sampler = WindowSampler(len(ds), shuffle, shuffle and num_samples is not None,
+                                num_samples if shuffle else None, seed)
     return DataLoader(ds, batch_size=batch_size, sampler=sampler, num_workers=num_workers, drop_last=drop_last,
                       worker_init_fn=_worker_init, collate_fn=_collate, persistent_workers=num_workers > 0)
 

@@ -99,13 +99,15 @@ class PolicyModule(L.LightningModule):
         return out["loss"]
 
     def _log(self, prefix: str, out: dict, batch: dict) -> None:
+        # sync_dist: under DDP a logged value is the mean over the ranks (the global batch), as one
+        # process with the whole batch would log it; a no-op in a single process
         bs = batch["actions"].shape[0]
         for k in ("loss", "nll", "kl"):
             if k in out:
-                self.log(f"{prefix}/{k}", out[k], prog_bar=(k == "loss"), batch_size=bs)
+                self.log(f"{prefix}/{k}", out[k], prog_bar=(k == "loss"), batch_size=bs, sync_dist=True)
         for g, v in out.get("kl_nats", {}).items():
             name = f"kl_nats/{g}" if prefix == "train" else f"{prefix}/kl_nats/{g}"
-            self.log(name, v, batch_size=bs)
+            self.log(name, v, batch_size=bs, sync_dist=True)
 
     def configure_optimizers(self):
         return torch.optim.Adam(self.parameters(), lr=self.optim_cfg["lr"])

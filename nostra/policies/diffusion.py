@@ -147,7 +147,7 @@ class DiffusionPolicy(PolicyModule):
 
     def _log(self, prefix: str, out: dict, batch: dict) -> None:
         super()._log(prefix, out, batch)
-        self.log(f"{prefix}/mse", out["mse"], batch_size=batch["actions"].shape[0])
+        self.log(f"{prefix}/mse", out["mse"], batch_size=batch["actions"].shape[0], sync_dist=True)
 
     def configure_optimizers(self):
         cfg = self.optim_cfg
