@@ -43,8 +43,7 @@ def success_rows(runs: Path, task: str, seeds: list[int]) -> pd.DataFrame:
     frames = []
     for seed in seeds:
         for ck in ("best", "last"):
-            path = runs / "evaluate" / task / f"s{seed}" / ck / "success.csv"
-            if path.is_file():
+            for path in sorted((runs / "evaluate" / task / f"s{seed}" / ck).rglob("success.csv")):  # one per noise
                 frames.append(pd.read_csv(path).assign(seed=seed, checkpoint=ck))
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 

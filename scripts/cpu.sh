@@ -6,7 +6,7 @@
 #
 # Every step is resumable: generation skips a finished file, ingest is idempotent, training
 # continues from last.ckpt (a finished run ends at once), so a killed run continues where it stopped.
-#   TASK=stackd1 MINUTES=60 SEEDS="0 1" MODELS="lstm nostra" make cpu
+#   TASK=stackd1 MINUTES=60 HORIZON=300 SEEDS="0 1" MODELS="lstm nostra" make cpu
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -14,9 +14,10 @@ TASK=${TASK:-liftd1}
 SEEDS=${SEEDS:-0}
 MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
+HORIZON=${HORIZON:-}   # rollout horizon in steps; empty: the profile's (200, enough for Lift)
 RUNS=data/runs/cpu
 OUT=reports/cpu/$TASK
-COMMON="profile=cpu task=$TASK paths.runs=$RUNS"
+COMMON="profile=cpu task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
@@ -45,25 +46,30 @@ for seed in $SEEDS; do
   done
 done
 
-# which variants exist: one per trained model (+ MLI for NOSTRA, which is the blind row's imagination)
-variants() {  # $1 = seed
-  local v="evaluate.variants.diffusion=null evaluate.variants.rssm=null evaluate.variants.rssm_li=null"
-  v="$v evaluate.variants.nostra_adamli=null"
-  case " $MODELS " in *" lstm "*) ;; *) v="$v evaluate.variants.lstm=null" ;; esac
-  case " $MODELS " in *" nostra "*) ;; *) v="$v evaluate.variants.nostra=null evaluate.variants.nostra_mli=null" ;; esac
-  echo "$v"
+# The cells: clean with the best and the last checkpoint, the blind control with the best. NOSTRA's
+# MLI variant runs only blind (with no noise it imagines nothing: it is the closed-loop policy) and
+# closed-loop NOSTRA only clean (blind, it would read black frames).
+variants() {  # $1 = the noise; prints the overrides that drop the variants this cell does not need
+  local drop="diffusion rssm rssm_li nostra_adamli"
+  case " $MODELS " in *" lstm "*) ;; *) drop="$drop lstm" ;; esac
+  case " $MODELS " in
+    *" nostra "*) if [ "$1" = none ]; then drop="$drop nostra_mli"; else drop="$drop nostra"; fi ;;
+    *) drop="$drop nostra nostra_mli" ;;
+  esac
+  for v in $drop; do printf 'evaluate.variants.%s=null ' "$v"; done
 }
 for seed in $SEEDS; do
-  for ck in best last; do
-    noises="[none,blind]"
-    [ "$ck" = last ] && noises="[none]"
-    log "evaluate seed $seed checkpoint=$ck noises=$noises"
-    nostra evaluate $COMMON seed=$seed evaluate.checkpoint=$ck "evaluate.noises=$noises" $(variants "$seed") \
-      evaluate.offline.enabled=false evaluate.out_dir=$RUNS/evaluate/$TASK/s$seed/$ck
+  for c in best:none best:blind last:none; do
+    ck=${c%%:*} noise=${c##*:}
+    out=$RUNS/evaluate/$TASK/s$seed/$ck/$noise
+    if [ -f "$out/success.csv" ]; then log "evaluate seed $seed $ck $noise: done before, kept"; continue; fi
+    log "evaluate seed $seed checkpoint=$ck noise=$noise"
+    nostra evaluate $COMMON seed=$seed evaluate.checkpoint=$ck "evaluate.noises=[$noise]" $(variants "$noise") \
+      evaluate.offline.enabled=false evaluate.out_dir=$out
   done
 done
 
 python -m nostra.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES make cpu" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} make cpu" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/index.md"
