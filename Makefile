@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell sha256sum pyproject.toml | cut -c1-16)
 
-.PHONY: demo test bench cpu cpu-recipe clean
+.PHONY: demo test bench cpu cpu-recipe cpu-claims clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || python3 -m venv $(VENV)
@@ -22,6 +22,9 @@ cpu: $(STAMP)
 
 cpu-recipe: $(STAMP)
 	@bash scripts/cpu_recipe.sh
+
+cpu-claims: $(STAMP)
+	@bash scripts/cpu_claims.sh
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -126,6 +126,14 @@ class Blackout(Injector):
 
 
 @dataclass
+class Unchanged(Injector):
+    """Corrupts nothing, yet its keys count as noised inside the windows: the oracle variants imagine
+    them there while the others see clean frames (imagination's own cost or gain, with no noise)."""
+
+    keys: tuple[str, ...] = RGB_KEYS
+
+
+@dataclass
 class ProprioZero(Injector):
     """Proprioception reads zero (sensor failure)."""
 
@@ -153,10 +161,12 @@ def _suite(name: str, params: dict) -> list[Injector]:
         "rgbd": [rgb, depth],
         "all": [rgb, depth, ProprioZero()],
         "blind": [Blackout()],
+        "clean_windows": [Unchanged()],
     }[name]
 
 
-NOISES = ("none", "mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero", "rgb", "rgbd", "all", "blind")
+NOISES = ("none", "mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero", "rgb", "rgbd", "all", "blind",
+          "clean_windows")
 WHOLE_EPISODE = ("blind",)  # noises that ignore the windows: active from the first step to the last
 
 

@@ -1,0 +1,214 @@
+"""The paper's claims at CPU scale (`make cpu-claims`): Table 1 per training seed and pooled, the
+controls, the paired comparisons and a verdict per claim, all read from the episode records that
+`nostra evaluate` wrote (records/<task>/<noise>/<variant>_seed<k>.npz under any folder of
+<runs>/evaluate/<task>/s<training seed>/<checkpoint>/).
+
+    python -m nostra.claims --evaluations data/runs/cpu/evaluate/liftd1 --out reports/cpu/liftd1/claims
+
+Every variant meets the same initial states (episode seed k), so variants are compared paired: the
+difference in points with a 95% percentile-bootstrap interval of the mean paired difference
+(scipy.stats.bootstrap) and McNemar's exact p (statsmodels). Pooled over training seeds, an episode
+is the pair (training seed, episode seed).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from nostra.evaluation import wilson
+from nostra.variants import LABELS
+
+TABLE1_NOISES = ["none", "mask", "cam_jitter", "table_tex"]
+CONTROL_NOISES = ["clean_windows", "blind"]
+ROWS = ["lstm", "diffusion", "rssm", "rssm_li", "nostra", "nostra_mli", "nostra_adamli"]
+# (a, b, noises): a - b, paired on the same initial states
+PAIRS = [("nostra_mli", "nostra", TABLE1_NOISES[1:]), ("nostra_mli", "lstm", TABLE1_NOISES),
+         ("nostra_mli", "diffusion", TABLE1_NOISES), ("nostra_adamli", "nostra_mli", TABLE1_NOISES[1:])]
+CLEAN_MIN, BLIND_MAX, WITHIN = 0.85, 0.20, 0.10  # the issue's bars: clean >= 85%, blind <= 20%, within 10 points
+POOLED = "pooled"
+
+
+def load_records(evaluations: Path) -> pd.DataFrame:
+    """One row per episode: seed (training), checkpoint, noise, variant, episode, success, and for
+    clean episodes the share of steps on which any modality was imagined."""
+    rows = {}
+    for f in sorted(evaluations.glob("s*/*/**/records/*/*/*_seed*.npz")):
+        seed_dir = next(p for p in f.parents if p.parent == evaluations)
+        checkpoint = f.relative_to(seed_dir).parts[0]
+        variant, episode = f.stem.rsplit("_seed", 1)
+        with np.load(f) as z:
+            imagined = [z[k] for k in z.files if k.startswith("imagined/")]
+            share = float(np.any(imagined, axis=0).mean()) if imagined else np.nan
+            key = (int(seed_dir.name[1:]), checkpoint, f.parent.name, variant, int(episode))
+            rows[key] = (bool(z["success"]), share)  # a cell evaluated twice: the later folder wins
+    index = pd.MultiIndex.from_tuples(rows, names=["seed", "checkpoint", "noise", "variant", "episode"])
+    return pd.DataFrame(list(rows.values()), index=index, columns=["success", "imagined_share"]).reset_index()
+
+
+def _with_pooled(df: pd.DataFrame) -> pd.DataFrame:
+    """Adds the pooled copy of every episode (seed 'pooled', episode = (training seed, episode seed))."""
+    pooled = df.assign(episode=df.seed.astype(str) + ":" + df.episode.astype(str), seed=POOLED)
+    return pd.concat([df.assign(seed=df.seed.astype(str), episode=df.episode.astype(str)), pooled])
+
+
+def success_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Success per (checkpoint, seed, variant, noise): k, n, rate and its 95% Wilson interval."""
+    g = _with_pooled(df).groupby(["checkpoint", "seed", "variant", "noise"])["success"]
+    t = g.agg(k="sum", n="count").reset_index()
+    t["rate"] = t.k / t.n
+    t[["ci_low", "ci_high"]] = [wilson(int(k), int(n)) for k, n in zip(t.k, t.n)]
+    return t
+
+
+def paired(a: pd.Series, b: pd.Series, seed: int = 0) -> dict:
+    """a - b over the episodes both have (indexed by episode): points, 95% bootstrap CI, McNemar exact p."""
+    from scipy.stats import bootstrap
+    from statsmodels.stats.contingency_tables import mcnemar
+
+    common = a.index.intersection(b.index)
+    x, y = a[common].to_numpy(bool), b[common].to_numpy(bool)
+    d = x.astype(float) - y
+    if len(d) == 0:
+        return {"n": 0}
+    if np.all(d == d[0]):  # no spread: the bootstrap interval is the point itself
+        lo = hi = d[0]
+    else:
+        ci = bootstrap((d,), np.mean, confidence_level=0.95, n_resamples=10_000, method="percentile",
+                       random_state=seed).confidence_interval
+        lo, hi = ci.low, ci.high
+    table = [[int(np.sum(x & y)), int(np.sum(x & ~y))], [int(np.sum(~x & y)), int(np.sum(~x & ~y))]]
+    return {"n": len(d), "rate_a": x.mean(), "rate_b": y.mean(), "diff": d.mean(), "ci_low": lo, "ci_high": hi,
+            "a_only": table[0][1], "b_only": table[1][0], "p": mcnemar(table, exact=True).pvalue}
+
+
+def paired_table(df: pd.DataFrame) -> pd.DataFrame:
+    rows = []
+    for (ck, seed), g in _with_pooled(df).groupby(["checkpoint", "seed"]):
+        cells = {(v, n): c.set_index("episode")["success"] for (v, n), c in g.groupby(["variant", "noise"])}
+        for a, b, noises in PAIRS:
+            for noise in noises:
+                if (a, noise) in cells and (b, noise) in cells:
+                    rows.append({"checkpoint": ck, "seed": seed, "noise": noise, "a": a, "b": b,
+                                 **paired(cells[a, noise], cells[b, noise])})
+        # imagination's own cost: oracle MLI over mask's windows with nothing corrupted vs NOSTRA clean
+        if ("nostra_mli", "clean_windows") in cells and ("nostra", "none") in cells:
+            rows.append({"checkpoint": ck, "seed": seed, "noise": "clean_windows vs none", "a": "nostra_mli",
+                         "b": "nostra", **paired(cells["nostra_mli", "clean_windows"], cells["nostra", "none"])})
+    return pd.DataFrame(rows)
+
+
+def false_imagination(df: pd.DataFrame) -> pd.DataFrame:
+    """AdaMLI on clean episodes: the share of steps on which it imagined any modality."""
+    clean = _with_pooled(df[(df.noise == "none") & (df.variant == "nostra_adamli")])
+    return clean.groupby(["checkpoint", "seed"])["imagined_share"].agg(["mean", "count"]).reset_index()
+
+
+def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: str = POOLED) -> list[str]:
+    """The paper's claims, each shown / not shown / not testable, with the numbers that decided it."""
+    s = success[(success.checkpoint == checkpoint) & (success.seed == seed)].set_index(["variant", "noise"])
+    rate = lambda v, n: s.rate.get((v, n), np.nan)  # noqa: E731
+    pct = lambda x: "–" if np.isnan(x) else f"{100 * x:.0f}%"  # noqa: E731
+    pre = [(f"closed-loop clean >= {CLEAN_MIN:.0%} (BC-LSTM {pct(rate('lstm', 'none'))}, BC-NOSTRA "
+            f"{pct(rate('nostra', 'none'))})", min(rate("lstm", "none"), rate("nostra", "none")) >= CLEAN_MIN),
+           (f"blind control <= {BLIND_MAX:.0%} (BC-LSTM {pct(rate('lstm', 'blind'))}, MLI "
+            f"{pct(rate('nostra_mli', 'blind'))})", max(rate("lstm", "blind"), rate("nostra_mli", "blind")) <= BLIND_MAX),
+           (f"mask hurts closed-loop BC-NOSTRA by >= {WITHIN:.0%} ({pct(rate('nostra', 'none'))} -> "
+            f"{pct(rate('nostra', 'mask'))})", rate("nostra", "none") - rate("nostra", "mask") >= WITHIN)]
+    p = pairs[(pairs.checkpoint == checkpoint) & (pairs.seed == seed)] if len(pairs) else pairs
+    vs_lstm = p[(p.a == "nostra_mli") & (p.b == "lstm") & (p.noise == "mask")] if len(p) else p
+    gain, p_lstm = (vs_lstm["diff"].iloc[0], vs_lstm["p"].iloc[0]) if len(vs_lstm) else (np.nan, np.nan)
+    claims = [
+        (f"BC-NOSTRA + MLI under mask within {WITHIN:.0%} of its clean success "
+         f"({pct(rate('nostra_mli', 'mask'))} vs {pct(rate('nostra', 'none'))})",
+         rate("nostra", "none") - rate("nostra_mli", "mask") <= WITHIN),
+        ("BC-NOSTRA + MLI above BC-LSTM under mask with McNemar p < 0.05 "
+         + (f"({gain * 100:+.0f} points, p = {p_lstm:.2g})" if len(vs_lstm) else "(–)"),
+         gain > 0 and p_lstm < 0.05),
+        (f"AdaMLI within {WITHIN:.0%} of oracle MLI under mask ({pct(rate('nostra_adamli', 'mask'))} vs "
+         f"{pct(rate('nostra_mli', 'mask'))})", abs(rate("nostra_adamli", "mask") - rate("nostra_mli", "mask")) <= WITHIN),
+    ]
+    lines = ["| Precondition | holds |", "|---|---|"] + [f"| {t} | {'yes' if ok else 'no'} |" for t, ok in pre]
+    testable = all(ok for _, ok in pre)
+    lines += ["", "| Claim | verdict |", "|---|---|"]
+    for text, ok in claims:
+        verdict = ("shown" if ok else "not shown") if testable else f"not testable ({'shown' if ok else 'not shown'} as measured)"
+        lines.append(f"| {text} | {verdict} |")
+    return lines
+
+
+def _cell(r) -> str:
+    return f"{100 * r.rate:.0f} [{100 * r.ci_low:.0f}, {100 * r.ci_high:.0f}]"
+
+
+def table1_markdown(success: pd.DataFrame, checkpoint: str, seed: str) -> list[str]:
+    s = success[(success.checkpoint == checkpoint) & (success.seed == seed)]
+    noises = [n for n in TABLE1_NOISES + CONTROL_NOISES if n in set(s.noise)]
+    lines = ["| Method | " + " | ".join(noises) + " |", "|---" * (len(noises) + 1) + "|"]
+    for v in [v for v in ROWS if v in set(s.variant)]:
+        r = s[s.variant == v].set_index("noise")
+        lines.append(f"| {LABELS.get(v, v)} | " + " | ".join(_cell(r.loc[n]) if n in r.index else "–" for n in noises) + " |")
+    return lines
+
+
+def paired_markdown(pairs: pd.DataFrame, checkpoint: str, seed: str) -> list[str]:
+    p = pairs[(pairs.checkpoint == checkpoint) & (pairs.seed == seed)] if len(pairs) else pairs
+    lines = ["| Comparison | noise | n | difference (points) [95% CI] | only a / only b | McNemar exact p |",
+             "|---|---|---|---|---|---|"]
+    for r in p.itertuples():
+        lines.append(f"| {LABELS.get(r.a, r.a)} - {LABELS.get(r.b, r.b)} | {r.noise} | {r.n} | "
+                     f"{100 * r.diff:+.0f} [{100 * r.ci_low:+.0f}, {100 * r.ci_high:+.0f}] | {r.a_only} / {r.b_only} | "
+                     f"{r.p:.2g} |")
+    return lines
+
+
+def write_report(evaluations: Path, out: Path, header: list[str] = ()) -> str:
+    df = load_records(evaluations)
+    if df.empty:
+        raise FileNotFoundError(f"no episode records under {evaluations}/s<seed>/<checkpoint>/**/records")
+    out.mkdir(parents=True, exist_ok=True)
+    success, pairs, fir = success_table(df), paired_table(df), false_imagination(df)
+    success.to_csv(out / "table1.csv", index=False)
+    pairs.to_csv(out / "paired.csv", index=False)
+    fir.to_csv(out / "false_imagination.csv", index=False)
+    seeds = sorted(set(success.seed) - {POOLED}, key=str) + [POOLED]
+    text = ["# The paper's claims at CPU scale", "", *header,
+            "Success in % over the episodes of each cell (95% Wilson interval); *clean_windows*: mask's windows with "
+            "nothing corrupted (MLI imagines the cameras there: imagination's own cost); *blind*: no camera all "
+            "episode (MLI: camera latents imagined from step 1). Pooled: every (training seed, episode) once.", ""]
+    for ck in [c for c in ("best", "last") if c in set(success.checkpoint)] + sorted(set(success.checkpoint) - {"best", "last"}):
+        text += [f"## Checkpoint: {ck}", ""]
+        for seed in seeds:
+            text += [f"### Table 1, training seed {seed}", "", *table1_markdown(success, ck, seed), ""]
+        text += ["### Paired comparisons (pooled)", "", *paired_markdown(pairs, ck, POOLED), "",
+                 "### Claims (pooled)", "", *verdicts(success, pairs, ck), ""]
+        f = fir[(fir.checkpoint == ck) & (fir.seed == POOLED)]
+        if len(f):
+            text += [f"AdaMLI false imagination on clean episodes: {100 * f['mean'].iloc[0]:.0f}% of steps "
+                     f"({int(f['count'].iloc[0])} episodes).", ""]
+    (out / "claims.md").write_text("\n".join(text))
+    return "\n".join(text)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--evaluations", required=True, type=Path, help="<runs>/evaluate/<task>")
+    ap.add_argument("--out", required=True, type=Path)
+    ap.add_argument("--command", default=None, help="the command that made the evaluations (for the header)")
+    ap.add_argument("--wall-seconds", type=float, default=None)
+    args = ap.parse_args(argv)
+    from nostra.cpu_report import machine
+
+    header = [f"- Machine: {machine()}", f"- Evaluations: `{args.evaluations}`"]
+    if args.command:
+        header.insert(0, f"- Command: `{args.command}`")
+    if args.wall_seconds:
+        header.append(f"- Wall time of the command: {args.wall_seconds / 60:.0f} min")
+    print(write_report(args.evaluations, args.out, header + [""]))
+
+
+if __name__ == "__main__":
+    main()

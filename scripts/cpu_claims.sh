@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# `make cpu-claims`: the paper's claims at the CPU profile on one task (issue 11). Trains and runs
+# the make-cpu cells through scripts/cpu.sh (every training seed), then every Table 1 cell
+# {none, mask, cam_jitter, table_tex} and the controls {clean_windows, blind} for the best and the
+# last checkpoint, 50 episodes each on the same initial states, and writes reports/cpu/<task>/claims/
+# (python -m nostra.claims: tables per seed and pooled, paired tests, verdicts).
+#
+# Resumable: a cell whose records exist is kept, training continues from last.ckpt.
+#   TASK=liftd1 SEEDS="0 1" MODELS="lstm nostra" make cpu-claims    # MODELS may add rssm diffusion
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export PATH="$PWD/.venv/bin:$PATH"
+TASK=${TASK:-liftd1}
+SEEDS=${SEEDS:-0 1}
+MODELS=${MODELS:-lstm nostra}
+MINUTES=${MINUTES:-30}
+HORIZON=${HORIZON:-}
+RUNS=data/runs/cpu
+EVAL=$RUNS/evaluate/$TASK
+start=$(date +%s)
+log() { echo "[$(date +%H:%M:%S)] $*"; }
+
+TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES HORIZON=$HORIZON bash scripts/cpu.sh
+
+# the variants each noise needs: under none an imagining variant is its closed-loop policy (nothing to
+# imagine), under clean_windows the closed-loop ones see clean frames (= none); blind keeps the
+# imagining ones and the policies with no latent to imagine (black frames)
+needed() {  # $1 = noise
+  local out=""
+  for m in $MODELS; do
+    case "$m:$1" in
+      lstm:clean_windows) ;;
+      lstm:*) out="$out lstm" ;;
+      diffusion:clean_windows) ;;
+      diffusion:*) out="$out diffusion" ;;
+      rssm:none) out="$out rssm" ;;
+      rssm:clean_windows|rssm:blind) out="$out rssm_li" ;;
+      rssm:*) out="$out rssm rssm_li" ;;
+      nostra:none) out="$out nostra nostra_adamli" ;;
+      nostra:clean_windows|nostra:blind) out="$out nostra_mli" ;;
+      nostra:*) out="$out nostra nostra_mli nostra_adamli" ;;
+    esac
+  done
+  echo $out
+}
+ALL="lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli"
+NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
+COMMON="profile=cpu task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
+for seed in $SEEDS; do
+  for ck in best last; do
+    for noise in none mask cam_jitter table_tex clean_windows blind; do
+      todo=""
+      for v in $(needed $noise); do  # kept: a variant with records of this cell (make cpu's folder or ours)
+        compgen -G "$EVAL/s$seed/$ck/$noise/**/records/$NAME/$noise/${v}_seed*.npz" > /dev/null ||
+          compgen -G "$EVAL/s$seed/$ck/$noise/records/$NAME/$noise/${v}_seed*.npz" > /dev/null || todo="$todo $v"
+      done
+      [ -z "$todo" ] && continue
+      drop=""
+      for v in $ALL; do case " $todo " in *" $v "*) ;; *) drop="$drop evaluate.variants.$v=null" ;; esac; done
+      out=$EVAL/s$seed/$ck/$noise/$(echo $todo | tr ' ' '+')
+      log "evaluate seed $seed checkpoint=$ck noise=$noise:$todo"
+      nostra evaluate $COMMON seed=$seed evaluate.checkpoint=$ck "evaluate.noises=[$noise]" $drop \
+        evaluate.offline.enabled=false evaluate.out_dir=$out
+    done
+  done
+done
+
+python -m nostra.claims --evaluations "$EVAL" --out "reports/cpu/$TASK/claims" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} make cpu-claims" \
+  --wall-seconds $(( $(date +%s) - start ))
+log "done in $(( ($(date +%s) - start) / 60 )) min: reports/cpu/$TASK/claims/claims.md"

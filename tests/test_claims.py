@@ -1,0 +1,74 @@
+"""The claims report: Table 1 per seed and pooled from episode records, paired comparisons on the
+same initial states (McNemar exact, bootstrap interval), AdaMLI's false imagination, and verdicts
+that are 'not testable' unless the preconditions hold."""
+
+import numpy as np
+import pytest
+
+from nostra.claims import load_records, paired_table, success_table, verdicts, write_report
+from nostra.sim.noise import NoiseSchedule
+
+
+def _write(root, seed, ck, noise, variant, successes, imagined=None, folder="cell"):
+    rec = root / f"s{seed}" / ck / noise / folder / "records" / "LiftD1" / noise
+    rec.mkdir(parents=True, exist_ok=True)
+    for k, s in enumerate(successes):
+        extra = {} if imagined is None else {"imagined/agentview_image": np.asarray(imagined[k], bool)}
+        np.savez_compressed(rec / f"{variant}_seed{1000 + k}.npz", success=s, steps=10, **extra)
+
+
+def _scenario(root, mli_mask, lstm_mask):
+    for seed in (0, 1):
+        _write(root, seed, "best", "none", "lstm", [True] * 10)
+        _write(root, seed, "best", "none", "nostra", [True] * 10)
+        _write(root, seed, "best", "blind", "lstm", [False] * 10)
+        _write(root, seed, "best", "blind", "nostra_mli", [False] * 10)
+        _write(root, seed, "best", "mask", "nostra", [True] * 5 + [False] * 5)
+        _write(root, seed, "best", "mask", "nostra_mli", mli_mask)
+        _write(root, seed, "best", "mask", "lstm", lstm_mask)
+        _write(root, seed, "best", "mask", "nostra_adamli", mli_mask[:-1] + [False])
+        _write(root, seed, "best", "none", "nostra_adamli", [True] * 10, imagined=[[True, False, False, False]] * 10)
+
+
+def test_pooled_table_paired_test_and_verdicts(tmp_path):
+    _scenario(tmp_path, mli_mask=[True] * 10, lstm_mask=[False] * 10)
+    df = load_records(tmp_path)
+    success = success_table(df)
+    pooled = success[(success.seed == "pooled") & (success.checkpoint == "best")].set_index(["variant", "noise"])
+    assert pooled.loc[("nostra", "mask"), "n"] == 20 and pooled.loc[("nostra", "mask"), "rate"] == 0.5
+    pairs = paired_table(df)
+    r = pairs[(pairs.seed == "pooled") & (pairs.a == "nostra_mli") & (pairs.b == "lstm") & (pairs.noise == "mask")].iloc[0]
+    assert r.n == 20 and r["diff"] == 1.0 and r.a_only == 20 and r.b_only == 0
+    assert r.p == pytest.approx(2 * 0.5 ** 20)
+    lines = "\n".join(verdicts(success, pairs, "best"))
+    assert "| BC-NOSTRA + MLI above BC-LSTM under mask with McNemar p < 0.05 (+100 points" in lines
+    assert lines.count("| shown |") == 3
+
+    report = write_report(tmp_path, tmp_path / "out")
+    assert "false imagination on clean episodes: 25% of steps (20 episodes)" in report
+    assert (tmp_path / "out" / "paired.csv").is_file() and (tmp_path / "out" / "table1.csv").is_file()
+
+
+def test_claims_are_not_testable_when_blind_control_succeeds(tmp_path):
+    _scenario(tmp_path, mli_mask=[True] * 10, lstm_mask=[True] * 9 + [False])
+    for seed in (0, 1):  # the task does not need the cameras: the claims cannot be tested on it
+        _write(tmp_path, seed, "best", "blind", "nostra_mli", [True] * 10)
+    df = load_records(tmp_path)
+    lines = "\n".join(verdicts(success_table(df), paired_table(df), "best"))
+    assert "| blind control <= 20% (BC-LSTM 0%, MLI 100%) | no |" in lines
+    assert "| shown |" not in lines and "not testable (not shown as measured)" in lines
+
+
+def test_paired_interval_is_over_the_same_episodes(tmp_path):
+    # MLI wins on seeds 0-4, loses on 5-9 of the same initial states: no difference, p = 1
+    _scenario(tmp_path, mli_mask=[True] * 5 + [False] * 5, lstm_mask=[False] * 5 + [True] * 5)
+    pairs = paired_table(load_records(tmp_path))
+    r = pairs[(pairs.seed == "0") & (pairs.a == "nostra_mli") & (pairs.b == "lstm") & (pairs.noise == "mask")].iloc[0]
+    assert r["diff"] == 0 and r.p == 1.0 and r.ci_low < 0 < r.ci_high
+
+
+def test_clean_windows_imagines_without_corrupting():
+    s = NoiseSchedule("clean_windows", [[5, 10]])
+    obs = {"agentview_image": np.full((4, 4, 3), 7, np.uint8), "robot0_eef_pos": np.ones(3)}
+    assert s.active(5) and not s.active(10) and "agentview_image" in s.keys
+    assert all(np.array_equal(s.corrupt(obs, 6)[k], obs[k]) for k in obs)
