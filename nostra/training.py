@@ -16,7 +16,7 @@ import lightning as L
 from lightning.pytorch.callbacks import ModelCheckpoint
 
 from nostra import ddp
-from nostra.data.dataset import make_loader, split_episodes
+from nostra.data.dataset import SPLIT_FILE, make_loader, save_split, split_episodes
 from nostra.data.store import Store
 from nostra.policies import policy_module
 from nostra.policies.checkpoint import load_net
@@ -185,6 +185,9 @@ def train(spec: TrainSpec) -> dict:
                                spec.dist_timeout_minutes)
     # built on every rank (a distributed run starts its other ranks in trainer.fit); only global rank 0 tracks
     zero = trainer.is_global_zero
+    if zero:  # evaluation's offline analysis reads the held-out episodes from here
+        out.mkdir(parents=True, exist_ok=True)
+        save_split(out / SPLIT_FILE, train_eps, val_eps)
     params = {"model": spec.policy, "stage": spec.stage, "seed": spec.seed, "collections": ",".join(spec.collections),
               "num_demos": spec.num_demos, "manifest_hash": manifest_hash, "max_steps": spec.max_steps,
               "init_from": spec.init_from, "world_size": trainer.world_size, **spec.params}

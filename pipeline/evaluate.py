@@ -39,14 +39,22 @@ def noise_windows(cfg) -> dict:
     return windows
 
 
+def _run_dir(checkpoint: str) -> Path:
+    """The training run a checkpoint belongs to (policy.ckpt in it, the others in its checkpoints/)."""
+    p = Path(checkpoint).parent
+    return p.parent if p.name == "checkpoints" else p
+
+
 def _offline(cfg, e) -> None:
     from nostra.analysis import OfflineSpec, analyse
-    from nostra.data.dataset import split_episodes
+    from nostra.data.dataset import held_out_episodes
     from nostra.tracking import Tracker
 
     o = e.offline
     collections = OmegaConf.to_container(o.collections, resolve=True)
-    _, held_out = split_episodes(cfg.data.store, list(collections), cfg.data.val_fraction, cfg.seed)
+    held_out = held_out_episodes(_run_dir(o.checkpoint), collections)  # the training run's own split
+    if not held_out:
+        raise ValueError(f"{o.checkpoint}: its training run held out no episode of {collections}")
     spec = OfflineSpec(checkpoint=o.checkpoint, store=cfg.data.store, episodes=held_out[: o.episodes],
                        noise=o.noise, windows=OmegaConf.to_container(o.windows, resolve=True) if o.windows else None,
                        out_dir=str(Path(e.out_dir) / "offline"), seed=cfg.seed,

@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from conftest import small_net
+from nostra.data.dataset import held_out_episodes, split_episodes
 from nostra.data.fixtures import write_robomimic
 from nostra.data.store import Store
 from nostra.policies.checkpoint import CheckpointError, load_runner
@@ -51,9 +52,20 @@ def test_pretrain_tracks_checkpoints_and_resumes(store, tmp_path):
     assert "metrics.train/loss" in runs and "metrics.kl_nats/agentview_image" in runs
     local = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
     assert any("train/loss" in r.get("metrics", {}) for r in local)
+    # the run's own split, which evaluation's offline analysis reads instead of recomputing it
+    assert held_out_episodes(out) == split_episodes(store, ["target"], 0.1, 0)[1] != []
+    assert held_out_episodes(out, ["library"]) == []
     # a re-run with more steps continues from last.ckpt instead of starting over
     again = train(spec(store, out, run_name="pre", max_steps=9))
     assert again["steps"] == 9
+
+
+def test_held_out_episodes_of_a_run_without_a_split(tmp_path):
+    with pytest.raises(FileNotFoundError, match="episodes.json: no episode split"):
+        held_out_episodes(tmp_path)
+    (tmp_path / "episodes.json").write_text('{"train": []}')
+    with pytest.raises(ValueError, match="episodes.json: not an episode split"):
+        held_out_episodes(tmp_path)
 
 
 def test_finetune_and_cotrain(store, tmp_path):

@@ -11,6 +11,7 @@ episode, not per window.
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 from collections import OrderedDict
@@ -396,3 +397,26 @@ def split_episodes(store, collections: Iterable[str], val_fraction: float = 0.1,
         val += [(c, int(i)) for i in np.flatnonzero(held)]
         train += [(c, int(i)) for i in np.flatnonzero(~held)]
     return train, val
+
+
+SPLIT_FILE = "episodes.json"  # a training run's split, beside its policy.ckpt
+
+
+def save_split(path, train: list[tuple[str, int]], val: list[tuple[str, int]]) -> None:
+    """The episodes a run trained on and held out, so later stages read them instead of recomputing."""
+    Path(path).write_text(json.dumps({"train": [list(e) for e in train], "held_out": [list(e) for e in val]}))
+
+
+def held_out_episodes(run_dir, collections: Iterable[str] | None = None) -> list[tuple[str, int]]:
+    """The episodes a training run held out (its ``episodes.json``), optionally of some collections."""
+    path = Path(run_dir) / SPLIT_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no episode split; the training run that made {run_dir} writes it "
+                                "(runs trained before it existed: train again)")
+    try:
+        pairs = [(str(c), int(i)) for c, i in json.loads(path.read_text())["held_out"]]
+    except (ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"{path}: not an episode split ({{'train': [[collection, index], ...], "
+                         f"'held_out': [...]}}): {e}") from e
+    wanted = None if collections is None else set(collections)
+    return [p for p in pairs if wanted is None or p[0] in wanted]
