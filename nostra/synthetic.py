@@ -49,7 +49,7 @@ def oscillator_modalities(distractor_dim: int = 8, image_size: int | None = None
 
 
 def stats_of(data: dict) -> dict:
-    from nostra.models.normalizer import fit_stats
+    from nostra.data.stats import fit_stats
 
     lowdim = {k: v for k, v in data["obs"].items() if v.dtype != np.uint8}
     return fit_stats({**lowdim, "actions": data["actions"]})

@@ -13,7 +13,8 @@ from omegaconf import OmegaConf
 from torch.utils.data import DataLoader
 
 from conftest import fit
-from nostra.models.normalizer import Normalizer, fit_stats
+from nostra.data.stats import fit_stats
+from nostra.models.normalizer import Normalizer
 from nostra.policies import policy_module
 from nostra.policies.checkpoint import load_net, load_runner
 from nostra.policies.diffusion import DiffusionNet, DiffusionPolicy, DiffusionRunner

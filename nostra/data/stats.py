@@ -49,3 +49,13 @@ def combine(parts: list[dict]) -> dict:
         acc._merge(s.n, s.mean, s.m2, s.min, s.max)
     d = acc.to_dict()
     return {k: (np.asarray(d[k], np.float32) if k != "count" else d[k]) for k in ("mean", "std", "min", "max", "count")}
+
+
+def fit_stats(arrays: dict[str, np.ndarray]) -> dict[str, dict]:
+    """The same statistics of whole in-memory arrays (over all leading dims), as ``combine`` gives them."""
+    out = {}
+    for k, a in arrays.items():
+        a, acc = np.asarray(a), RunningStats()
+        acc.update(a.reshape(-1, a.shape[-1]))
+        out[k] = combine([acc.to_dict()])
+    return out

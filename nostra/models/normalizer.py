@@ -71,13 +71,3 @@ class Normalizer(nn.Module):
         """[-1, 1] -> [min, max]."""
         center, half = self._center_half(key)
         return x * half + center
-
-
-def fit_stats(arrays: dict[str, np.ndarray]) -> dict[str, dict]:
-    """Mean, std, min and max over all leading dims of each array (the keys the store keeps)."""
-    out = {}
-    for k, a in arrays.items():
-        a = np.asarray(a, dtype=np.float64).reshape(-1, np.asarray(a).shape[-1])
-        out[k] = {"mean": a.mean(0).astype(np.float32), "std": a.std(0).astype(np.float32),
-                  "min": a.min(0).astype(np.float32), "max": a.max(0).astype(np.float32)}
-    return out
