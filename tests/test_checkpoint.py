@@ -86,7 +86,10 @@ def test_rssm_imagines_the_whole_latent(saved):
 
 def test_wrong_policy_is_refused(saved):
     with pytest.raises(CheckpointError, match="holds a 'lstm' policy, not 'nostra'"):
-        runner_class("nostra").from_checkpoint(saved["lstm"][0])
+        load_runner(saved["lstm"][0], expected_policy="nostra")
+    with pytest.raises(CheckpointError, match="holds a 'lstm' policy, not 'nostra'"):
+        load_net(saved["lstm"][0], expected_policy="nostra")
+    assert type(load_runner(saved["lstm"][0], expected_policy="lstm")) is runner_class("lstm")
 
 
 def test_wrong_modality_set_is_refused(saved):

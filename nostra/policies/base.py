@@ -18,6 +18,9 @@ from nostra.modality import Modality, as_modalities
 from nostra.models.encoders import ModalityEncoder
 from nostra.models.normalizer import Normalizer
 
+# The version of the metadata PolicyModule.on_save_checkpoint writes; nostra.policies.checkpoint
+# reads checkpoints and refuses other versions. The dependency is one-way: checkpoint.py imports
+# this module (and the policy registry), this module knows nothing of reading checkpoints.
 CHECKPOINT_FORMAT = 1
 
 
@@ -124,6 +127,7 @@ class PolicyModule(L.LightningModule):
 
 class Runner:
     """Stateful step-by-step execution of a trained policy: ``reset()`` then ``step(obs)``.
+    From a checkpoint: ``nostra.policies.checkpoint.load_runner(path, expected_policy=...)``.
 
     ``obs`` maps each modality name to one step's array (no batch dim). ``imagine`` (where the
     policy supports it) names modalities whose prior latent replaces the posterior this step.
@@ -138,12 +142,6 @@ class Runner:
         self.device = torch.device(device)
         self.net = net.to(self.device).eval()
         self.reset()
-
-    @classmethod
-    def from_checkpoint(cls, path, modalities: Iterable[str] | None = None, **kwargs) -> "Runner":
-        from nostra.policies.checkpoint import load_net
-
-        return cls(load_net(path, expected_policy=cls.policy, expected_modalities=modalities), **kwargs)
 
     @property
     def modality_names(self) -> list[str]:

@@ -1,5 +1,9 @@
 """Loading a trained policy from a Lightning checkpoint with no training code, with clear errors
-for a file that is not a policy checkpoint, another policy, or another modality set."""
+for a file that is not a policy checkpoint, another policy, or another modality set.
+
+The metadata is written by ``PolicyModule.on_save_checkpoint`` (nostra.policies.base, which also
+defines CHECKPOINT_FORMAT). Imports go one way: this module imports base and the policy registry
+(nostra.policies); neither imports this module (tests/test_imports.py checks it)."""
 
 from __future__ import annotations
 
@@ -9,6 +13,7 @@ from typing import Iterable
 import torch
 
 from nostra.modality import as_modalities
+from nostra.policies import POLICIES, runner_class
 from nostra.policies.base import CHECKPOINT_FORMAT
 
 
@@ -35,8 +40,6 @@ def read_meta(path) -> tuple[dict, dict]:
 
 def load_net(path, expected_policy: str | None = None, expected_modalities: Iterable[str] | None = None):
     """Build the policy network stored in ``path`` and load its weights (eval mode)."""
-    from nostra.policies import POLICIES
-
     meta, state = read_meta(path)
     policy = meta["policy"]
     if policy not in POLICIES:
@@ -59,11 +62,10 @@ def load_net(path, expected_policy: str | None = None, expected_modalities: Iter
     return net.eval()
 
 
-def load_runner(path, modalities: Iterable[str] | None = None, **runner_kwargs):
-    """The runner of whatever policy ``path`` holds."""
-    from nostra.policies import runner_class
-
-    net = load_net(path, expected_modalities=modalities)
+def load_runner(path, modalities: Iterable[str] | None = None, expected_policy: str | None = None,
+                **runner_kwargs):
+    """The runner of whatever policy ``path`` holds (refused unless it is ``expected_policy``, when given)."""
+    net = load_net(path, expected_policy=expected_policy, expected_modalities=modalities)
     return runner_class(net.policy)(net, **runner_kwargs)
 
 
