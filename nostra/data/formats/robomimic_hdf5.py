@@ -173,8 +173,9 @@ NEXT_OBS_DERIVED = "next_obs/<key> derived by nostra: obs shifted by one step, t
 def write(path, episodes: Iterable[Episode], env_args: dict, total: int | None = None,
           next_obs: bool = True, progress: bool = True, mask_names: Iterable[str] = ()) -> Path:
     """Write episodes as a robomimic file. Written beside the target and renamed at the end, so a
-    failure never leaves a half-written file; no creation times (the same episodes, the same bytes). ``next_obs`` is each obs shifted by one step, then the
-    episode's ``next_last`` where it has one, else the last step repeated; ``data.attrs``
+    failure never leaves a half-written file; no creation times (the same episodes, the same bytes).
+    ``next_obs`` is each obs shifted by one step, then the episode's ``next_last`` where it has one,
+    else the last step repeated; ``data.attrs``
     ``next_obs_derived`` says which (and ``next_obs_note`` how). ``mask_names``: masks written even
     when no demo is in them."""
     path = Path(path)
