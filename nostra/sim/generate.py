@@ -16,12 +16,19 @@ robot executes (clipped to [-1, 1]), so demos visit states slightly off the expe
 clean action at those states, i.e. its correction (DART). Episodes whose expert fails are dropped
 and counted. The file is written under a temporary name
 and renamed when complete, so an interrupted run leaves no partial file behind.
+
+The file is bit-reproducible: the same config, code and machine write the same bytes. It holds no
+creation times (h5py's ``track_times=False``), no wall-clock values, and ``model_file`` names the
+robosuite assets relative to the package (``robosuite/models/assets/...``, which robosuite's
+``edit_model_xml`` resolves against the local install, as it does for robomimic's files) rather than
+by the absolute path of the installation that generated it.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
@@ -103,11 +110,21 @@ def run_episode(env, expert, seed: int, variation: Variation | None = None, max_
     meta["success"] = bool(succeeded_at is not None and meta["success"])
     n = len(actions)
     return {
-        "meta": meta, "model_file": env.model_xml(),
+        "meta": meta, "model_file": portable_model_xml(env.model_xml()),
         "obs": {k: np.stack([f[k] for f in frames]) for k in frames[0]},
         "states": np.stack(states), "actions": np.stack(actions).astype(np.float32),
         "rewards": np.asarray(rewards, dtype=np.float32), "dones": (np.arange(n) == n - 1).astype(np.uint8),
     }
+
+
+def portable_model_xml(xml: str) -> str:
+    """The MJCF with robosuite's asset files named from the package directory on
+    (``file="robosuite/models/assets/..."``) instead of this installation's absolute path, so the
+    demos do not depend on where the environment was installed."""
+    import robosuite
+
+    root = os.path.dirname(os.path.abspath(robosuite.__file__))
+    return re.sub(r'(\bfile=")' + re.escape(root) + "/", r"\1robosuite/", xml)
 
 
 # ---- workers -------------------------------------------------------------------------------------
@@ -185,7 +202,7 @@ class RobomimicWriter:
         for key, value in episode["meta"].items():
             g.attrs[key] = json.dumps(value) if key in META_JSON else value
         for key in ("states", "actions", "rewards", "dones"):
-            g.create_dataset(key, data=episode[key])
+            g.create_dataset(key, data=episode[key], track_times=False)
         for key, frames in episode["obs"].items():
             self._frames(g, f"obs/{key}", frames[:-1])
             self._frames(g, f"next_obs/{key}", frames[1:])
@@ -196,16 +213,17 @@ class RobomimicWriter:
     @staticmethod
     def _frames(g: h5py.Group, key: str, arr: np.ndarray) -> None:
         if arr.ndim >= 3:  # images: one compressed chunk per frame
-            g.create_dataset(key, data=arr, chunks=(1, *arr.shape[1:]), compression="gzip", compression_opts=4)
+            g.create_dataset(key, data=arr, chunks=(1, *arr.shape[1:]), compression="gzip", compression_opts=4,
+                             track_times=False)
         else:
-            g.create_dataset(key, data=arr)
+            g.create_dataset(key, data=arr, track_times=False)
 
     def close(self, valid_fraction: float = 0.1, seed: int = 0) -> Path:
         self.data.attrs["total"] = self.total
         self.data.attrs["env_args"] = json.dumps(self.env_args)
         train, valid = split_names(self.names, valid_fraction, seed)
-        self.file.create_dataset("mask/train", data=np.array(train, dtype="S"))
-        self.file.create_dataset("mask/valid", data=np.array(valid, dtype="S"))
+        self.file.create_dataset("mask/train", data=np.array(train, dtype="S"), track_times=False)
+        self.file.create_dataset("mask/valid", data=np.array(valid, dtype="S"), track_times=False)
         self.file.close()
         os.replace(self.tmp, self.path)
         return self.path

@@ -173,8 +173,9 @@ NEXT_OBS_DERIVED = "next_obs/<key> derived by nostra: obs shifted by one step, t
 def write(path, episodes: Iterable[Episode], env_args: dict, total: int | None = None,
           next_obs: bool = True, progress: bool = True, mask_names: Iterable[str] = ()) -> Path:
     """Write episodes as a robomimic file. Written beside the target and renamed at the end, so a
-    failure never leaves a half-written file. ``next_obs`` is each obs shifted by one step, then the
-    episode's ``next_last`` where it has one, else the last step repeated; ``data.attrs``
+    failure never leaves a half-written file; no creation times (the same episodes, the same bytes).
+    ``next_obs`` is each obs shifted by one step, then the episode's ``next_last`` where it has one,
+    else the last step repeated; ``data.attrs``
     ``next_obs_derived`` says which (and ``next_obs_note`` how). ``mask_names``: masks written even
     when no demo is in them."""
     path = Path(path)
@@ -198,7 +199,8 @@ def write(path, episodes: Iterable[Episode], env_args: dict, total: int | None =
                 if derived:
                     data.attrs["next_obs_note"] = NEXT_OBS_DERIVED
             for name, demos in masks.items():
-                f.create_dataset(f"mask/{name}", data=np.array(demos, dtype="S") if demos else np.zeros(0, "S1"))
+                f.create_dataset(f"mask/{name}", data=np.array(demos, dtype="S") if demos else np.zeros(0, "S1"),
+                                 track_times=False)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
@@ -214,19 +216,20 @@ def _write_demo(g, ep: Episode, next_obs: bool) -> bool:
             continue
         g.attrs[k] = json.dumps(v) if k in NESTED else v
     g.attrs.setdefault("model_file", "")
-    g.create_dataset("actions", data=ep.actions)
+    g.create_dataset("actions", data=ep.actions, track_times=False)
     extras = dict(ep.extras)
     extras.setdefault("rewards", np.zeros(n, np.float32))
     extras.setdefault("dones", (np.arange(n) == n - 1).astype(np.int64))
     for k, v in extras.items():
-        g.create_dataset(k, data=v)
+        g.create_dataset(k, data=v, track_times=False)
     derived = False
     for k, v in ep.obs.items():
         opts = {"compression": "gzip", "compression_opts": 4} if v.dtype == np.uint8 else {}
-        g.create_dataset(f"obs/{k}", data=v, chunks=True if opts else None, **opts)
+        g.create_dataset(f"obs/{k}", data=v, chunks=True if opts else None, track_times=False, **opts)
         if next_obs:
             last = ep.next_obs.get(k)
             derived |= last is None
             last = v[-1:] if last is None else np.asarray(last)[-1:]
-            g.create_dataset(f"next_obs/{k}", data=np.concatenate([v[1:], last]), chunks=True if opts else None, **opts)
+            g.create_dataset(f"next_obs/{k}", data=np.concatenate([v[1:], last]), chunks=True if opts else None,
+                             track_times=False, **opts)
     return derived
