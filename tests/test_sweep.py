@@ -32,14 +32,30 @@ def test_local_sweep_groups_runs_under_a_parent(tmp_path):
     cmd = [NOSTRA, "sweep", "data.store=store.zarr", "data.collections=[t]", "train.max_steps=2",
            "data.batch_size=2", "data.seq_len=4", "data.workers=0", "model=nostra,lstm",
            "data.obs_keys=[agentview_image,robot0_eef_pos]"]
-    subprocess.run(cmd, cwd=tmp_path, env=env, check=True, capture_output=True, timeout=900)
+    try:
+        proc = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
+        out = proc.stdout + proc.stderr
+    except subprocess.TimeoutExpired as e:
+        proc, out = None, f"timed out after 900 s\n{e.stdout or ''}{e.stderr or ''}"
     jobs = sorted((tmp_path / "data/runs/sweeps").glob("*/[0-9]"))
-    assert [j.name for j in jobs] == ["0", "1"] and all((j / "policy.ckpt").is_file() for j in jobs)
+    ok = proc is not None and proc.returncode == 0
+    assert ok and [j.name for j in jobs] == ["0", "1"] and all((j / "policy.ckpt").is_file() for j in jobs), \
+        _diagnose(tmp_path, out)
     mlflow.set_tracking_uri(f"sqlite:///{tmp_path / 'mlflow.db'}")
     runs = mlflow.search_runs(search_all_experiments=True)
     parent = runs[runs["tags.sweep"] == "true"]
     children = runs[runs["tags.mlflow.parentRunId"] == parent["run_id"].iloc[0]]
     assert len(parent) == 1 and sorted(children["params.model"]) == ["lstm", "nostra"]
+
+
+def _diagnose(root, out: str) -> str:
+    """What the sweep and its submitit jobs left behind (for the order-dependent failure)."""
+    lines = [out[-4000:]]
+    for f in sorted(root.rglob(".submitit/*/*")):
+        lines.append(f"{f.relative_to(root)} ({f.stat().st_size} B)")
+        if f.suffix in (".out", ".err"):
+            lines.append(f.read_text(errors="replace")[-2000:])
+    return "\n".join(lines)
 
 
 def test_slurm_launcher_writes_an_sbatch_script(tmp_path, monkeypatch):
