@@ -5,7 +5,6 @@ flags, noise draws and records. Observation noises run on recorded observations 
 
 import subprocess
 import sys
-from collections import defaultdict
 from types import SimpleNamespace
 
 import numpy as np
