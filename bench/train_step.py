@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def profile_shapes(name: str) -> dict:
     prof = yaml.safe_load((ROOT / "conf" / "profile" / f"{name}.yaml").read_text())
-    keys = prof.get("obs_keys") or yaml.safe_load((ROOT / "conf/data/default.yaml").read_text())["obs_keys"]
+    keys = prof.get("obs_keys") or yaml.safe_load((ROOT / "conf/data/default.yaml").read_text())["all_keys"]
     return {"batch": prof["batch_size"], "seq": prof["seq_len"], "size": prof["image_size"], "keys": keys,
             "net": {"image_encoder": prof["image_encoder"], "image_aug": prof.get("image_aug", "none")}}
 

@@ -15,8 +15,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from nostra import episode
+from nostra.episode import Episode, RecordedSource, oracle_keys
 from nostra.imagination import detection_scores
-from nostra.sim.noise import NoiseSchedule, check_noise
+from nostra.noise import NoiseSchedule, check_noise
 
 # noises that act on stored observations (camera jitter and texture swaps need the simulator)
 OFFLINE_NOISES = ("mask", "depth_mask", "proprio_zero", "rgb", "rgbd", "all")
@@ -35,36 +37,17 @@ class OfflineSpec:
     noise_params: dict = field(default_factory=dict)
 
 
-class _Frame:
-    """What an image injector needs of an environment, for stored observations."""
-
-    def __init__(self, image_size: int):
-        self.image_size = image_size
-
-
 def _windows(spec: OfflineSpec, length: int) -> list[tuple[int, int]]:
     if spec.windows:
         return [(int(a), int(b)) for a, b in spec.windows if a < length]
     return [(max(1, length // 3), max(2, 2 * length // 3))]
 
 
-def _replay(runner, obs: dict, length: int, schedule: NoiseSchedule | None, imagine_keys, image_size: int, seed: int):
-    """Step a runner through a stored episode; returns actions and per-step info."""
-    rng = np.random.default_rng([seed, 7])
-    frame = _Frame(image_size)
-    runner.reset()
-    actions, infos = [], []
-    for t in range(length):
-        o = {k: v[t] for k, v in obs.items()}
-        if schedule is not None:
-            if schedule.active(t) and not schedule.active(t - 1):
-                for inj in schedule.injectors:
-                    inj.begin(frame, rng)
-            o = schedule.corrupt(o, t)
-        imagine = imagine_keys if (schedule is not None and schedule.active(t) and imagine_keys) else None
-        a, info = runner.step(o, imagine=imagine)
-        actions.append(a), infos.append(info)
-    return np.asarray(actions), infos
+def _replay(runner, obs: dict, horizon: int, schedule: NoiseSchedule, mode: str, image_size: int,
+            seed: int) -> Episode:
+    """Step a runner through a stored episode (the episode engine, recorded observations)."""
+    return episode.run(RecordedSource(obs, image_size), runner, schedule, mode, horizon,
+                       np.random.default_rng([seed, 7]))
 
 
 def analyse(spec: OfflineSpec) -> dict:
@@ -95,24 +78,24 @@ def analyse(spec: OfflineSpec) -> dict:
         data = store.episode(coll, ep, [*names, "actions"])
         obs, target, length = {k: data[k] for k in names}, data["actions"], len(data["actions"])
         schedule = NoiseSchedule(spec.noise, _windows(spec, length), spec.noise_params)
-        inside = np.array([schedule.active(t) for t in range(length)])
+        inside = schedule.mask(length)
+        noised = oracle_keys(schedule, names)
         seed = spec.seed + ep_i
-        act, infos = _replay(closed, obs, length, None, None, image_size, seed)
-        errors["clean"].append(_err(act, target, inside))
+        run = _replay(closed, obs, length, NoiseSchedule("none", []), "closed", image_size, seed)
+        errors["clean"].append(_err(np.asarray(run.action), target, inside))
         for g in kl_clean:
-            kl_clean[g] += [i["kl"][g] for i in infos]
+            kl_clean[g] += [i[g] for i in run.kl]
         for v, runner in variants.items():
-            keys = schedule.keys & set(names) if v == "oracle" else None
-            act, infos = _replay(runner, obs, length, schedule, keys, image_size, seed)
-            errors[v].append(_err(act, target, inside))
+            run = _replay(runner, obs, length, schedule, v, image_size, seed)
+            errors[v].append(_err(np.asarray(run.action), target, inside))
             if v == "adaptive":
                 for m in names:
-                    flags[m] += [i["imagined"][m] for i in infos]
-                    truth[m] += list(inside & (m in schedule.keys))
+                    flags[m] += [i[m] for i in run.imagined]
+                    truth[m] += list(inside & (m in noised))
                 if not figure_done:
-                    kl_figure({g: np.array([i["kl"][g] for i in infos]) for g in closed.net.groups}, schedule.windows,
-                              out / "kl_episode.png", {m: np.array([i["imagined"][m] for i in infos])
-                                                       for m in names if m in schedule.keys},
+                    kl_figure({g: np.array([i[g] for i in run.kl]) for g in closed.net.groups}, schedule.windows,
+                              out / "kl_episode.png", {m: np.array([i[m] for i in run.imagined])
+                                                       for m in names if m in noised},
                               title=f"{coll} episode {ep}, noise {spec.noise}")
                     figure_done = True
     result = {"action_mse": {v: float(np.nanmean(e)) for v, e in errors.items()},

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from nostra.sim.noise import NoiseSchedule
+from nostra.noise import NoiseSchedule
 from nostra.sim.rollout import EpisodeJob, EpisodeResult, init_worker, work
 from nostra.variants import LABELS, MODES
 ENV_KEYS = ("agentview_image", "robot0_eye_in_hand_image", "agentview_depth", "robot0_eef_pos",

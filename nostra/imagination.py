@@ -108,9 +108,12 @@ def detection_scores(flags: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     return {"precision": precision, "recall": recall}
 
 
+def in_windows(t: int, windows) -> bool:
+    """Whether step t lies inside one of the half-open windows [start, end): the one such test
+    (noise schedules, the oracle's imagination and the detection ground truth all use it)."""
+    return any(start <= t < end for start, end in windows)
+
+
 def window_mask(horizon: int, windows: list[tuple[int, int]]) -> np.ndarray:
     """Boolean (horizon,) mask that is true inside the half-open windows [start, end)."""
-    mask = np.zeros(horizon, dtype=bool)
-    for start, end in windows:
-        mask[max(0, start):min(horizon, end)] = True
-    return mask
+    return np.array([in_windows(t, windows) for t in range(horizon)], dtype=bool)

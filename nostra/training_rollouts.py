@@ -45,7 +45,7 @@ class RolloutConfig:
     workers: int = 2
 
     def __post_init__(self):
-        from nostra.sim.noise import check_noise
+        from nostra.noise import check_noise
         from nostra.sim.tasks import get_task
 
         get_task(self.task)

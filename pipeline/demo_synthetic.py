@@ -7,6 +7,7 @@ This checks the models on data with known structure; it is not a robot result.""
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 import lightning as L
@@ -17,8 +18,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from nostra import episode  # noqa: E402
 from nostra import synthetic as S  # noqa: E402
+from nostra.imagination import window_mask  # noqa: E402
 from nostra.policies import policy_module, runner_class  # noqa: E402
+from nostra.noise import Injector, NoiseSchedule  # noqa: E402
 
 STEPS, WINDOW = 40, (20, 30)
 NET = {"nostra": dict(embed_dim=32, encoder_hidden=[64], latent_dim=8, deter=64, hidden=64, fusion_embed=32,
@@ -42,27 +46,39 @@ def train(policy: str, data: dict, steps: int):
     return module.eval()
 
 
+@dataclass
+class StuckSensor(Injector):
+    """A sensor stuck at a wrong value."""
+
+    key: str = "pos"
+    value: np.ndarray | None = None
+
+    @property
+    def keys(self):
+        return (self.key,)
+
+    def corrupt(self, obs):
+        return {**obs, self.key: self.value}
+
+
 def run_episode(runner, test: dict, ep: int, corrupt: bool, oracle: bool):
-    runner.reset()
-    errs, trace = [], []
-    for t in range(STEPS):
-        obs = {k: v[ep, t] for k, v in test["obs"].items()}
-        inside = WINDOW[0] <= t < WINDOW[1]
-        if corrupt and inside:  # a stuck sensor reading a wrong value
-            obs["pos"] = test["obs"]["pos"][ep, WINDOW[0] - 1] + 0.5
-        action, info = runner.step(obs, imagine={"pos"} if oracle and inside else None)
-        if inside:
-            errs.append(float(np.sum((action - test["actions"][ep, t]) ** 2)))
-        trace.append(info)
-    return float(np.mean(errs)), trace
+    """Mean action error inside WINDOW, where (``corrupt``) ``pos`` is stuck at its last value before
+    the window + 0.5, imagined there with ``oracle``; and the episode (the episode engine's record)."""
+    stuck = StuckSensor("pos", test["obs"]["pos"][ep, WINDOW[0] - 1] + 0.5)
+    schedule = NoiseSchedule("stuck pos", [WINDOW], injectors=[stuck] if corrupt else [])
+    run = episode.run(episode.RecordedSource({k: v[ep] for k, v in test["obs"].items()}), runner, schedule,
+                      "oracle" if oracle else "closed", STEPS)
+    inside = window_mask(STEPS, [WINDOW])
+    errs = [float(np.sum((a - test["actions"][ep, t]) ** 2)) for t, a in enumerate(run.action) if inside[t]]
+    return float(np.mean(errs)), run
 
 
-def kl_figure(trace: list, path: Path) -> None:
+def kl_figure(run: episode.Episode, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 3.2))
-    for m in trace[0]["kl"]:
-        ax.semilogy([i["kl"][m] for i in trace], label=m)
+    for m in run.kl[0]:
+        ax.semilogy([kl[m] for kl in run.kl], label=m)
     ax.axvspan(*WINDOW, color="red", alpha=0.15, label="stuck pos sensor")
-    flags = [t for t, i in enumerate(trace) if i["imagined"]["pos"]]
+    flags = [t for t, im in enumerate(run.imagined) if im["pos"]]
     ax.plot(flags, [ax.get_ylim()[1] * 0.5] * len(flags), "k|", label="AdaMLI imagines pos")
     ax.set_xlabel("step"), ax.set_ylabel("KL (nats)"), ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout(), fig.savefig(path, dpi=120), plt.close(fig)

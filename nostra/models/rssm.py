@@ -16,6 +16,7 @@ learned function of a constant and every episode starts from the same state.
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import torch
 from torch import nn
@@ -101,6 +102,23 @@ class MultimodalRSSM(nn.Module):
     def posteriors(self, h: torch.Tensor, embeds: torch.Tensor) -> Normal:
         """Closed-loop posteriors q(z_t^g | h_t, e_t^g); embeds (G, B, E)."""
         return self.post(torch.cat([h.unsqueeze(0).expand(self.groups, -1, -1), embeds], -1))
+
+    def step(self, state: tuple[torch.Tensor, torch.Tensor], embeds: torch.Tensor,
+             imagine: torch.Tensor | Callable[[Normal, Normal], torch.Tensor] | None = None,
+             sample: bool = True) -> tuple[tuple[torch.Tensor, torch.Tensor], Normal, Normal]:
+        """One filter step, the only one: the sequence filter of training loops over it and the
+        runner calls it once per control step (like DreamerV3's shared obs/img step).
+
+        state (h_{t-1}, z_{t-1}); embeds (G, B, E) of step t. The GRU advances h, the prior and the
+        posterior of every group are computed, and z_t is the posterior latent except where
+        ``imagine`` (G, B) is true: there the prior's replaces it (MLI / LI). ``imagine`` may be a
+        function of (posterior, prior) returning that mask, for a choice that needs the step's
+        KL (AdaMLI). The model has no action input: h_t = GRU(h_{t-1}, z_{t-1}) (section 3.1).
+        Returns the new state, the posteriors and the priors over (G, B, Z)."""
+        h, prior = self.transition(*state)
+        post = self.posteriors(h, embeds)
+        mask = imagine(post, prior) if callable(imagine) else imagine
+        return (h, self.select(post, prior, mask, sample)), post, prior
 
     @staticmethod
     def select(post: Normal, prior: Normal, imagine: torch.Tensor | None, sample: bool) -> torch.Tensor:

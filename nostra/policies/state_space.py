@@ -62,13 +62,11 @@ class StateSpaceNet(PolicyNet):
         emb = self.group_embeds(self.encode(obs))  # (G,B,T,E)
         steps = emb.shape[2]
         mask = None if imagine is None else self.imagine_mask(imagine)
-        h, z = self.core.initial(emb.shape[1], emb.device)
+        state = self.core.initial(emb.shape[1], emb.device)
         zs, posts, priors = [], [], []
         for t in range(steps):
-            h, prior = self.core.transition(h, z)
-            post = self.core.posteriors(h, emb[:, :, t])
-            z = self.core.select(post, prior, None if mask is None else mask[:, :, t], sample)
-            zs.append(z), posts.append(post), priors.append(prior)
+            state, post, prior = self.core.step(state, emb[:, :, t], None if mask is None else mask[:, :, t], sample)
+            zs.append(state[1]), posts.append(post), priors.append(prior)
         feats = self.fusion(torch.stack(zs, 2).permute(1, 2, 0, 3))  # tokens (B,T,G,Z)
         return feats, _stack(posts), _stack(priors)
 
@@ -117,14 +115,18 @@ class StateSpaceRunner(Runner):
             self.h, self.z = core.initial(1, self.device)  # restart the filter; AdaMLI keeps its windows
         self.t += 1
         emb = net.group_embeds(net.encode(self._to_tensors(obs)))
-        h, prior = core.transition(self.h, self.z)
-        post = core.posteriors(h, emb)
-        kl = dict(zip(net.groups, diag_kl(post, prior)[:, 0].tolist()))
-        flags = self.detector.update(kl) if self.detector is not None else {g: False for g in net.groups}
-        if forced is not None:
-            flags = {g: any(m in forced for m in ms) for g, ms in net.groups.items()}
-        mask = torch.tensor([[flags[g]] for g in net.groups], device=self.device)
-        self.h, self.z = h, core.select(post, prior, mask, sample=False)
+        seen: dict = {}
+
+        def choose(post, prior):  # which latents to imagine, once this step's KL is known
+            seen["kl"] = kl = dict(zip(net.groups, diag_kl(post, prior)[:, 0].tolist()))
+            flags = self.detector.update(kl) if self.detector is not None else {g: False for g in net.groups}
+            if forced is not None:
+                flags = {g: any(m in forced for m in ms) for g, ms in net.groups.items()}
+            seen["flags"] = flags
+            return torch.tensor([[flags[g]] for g in net.groups], device=self.device)
+
+        (self.h, self.z), _, _ = core.step((self.h, self.z), emb, imagine=choose, sample=False)
+        kl, flags = seen["kl"], seen["flags"]
         action = net.act(net.fusion(self.z.transpose(0, 1)))[0].cpu().numpy()
         info = {"kl": kl, "imagined": {m: bool(flags[net.group_of(m)]) for m in net.modality_names}}
         return action, info

@@ -1,5 +1,6 @@
 """One evaluation episode: a policy runner in a task, under a noise schedule, recording what
-happened at every step. Also the worker-process side of parallel evaluation (one env and the
+happened at every step (the episode engine of ``nostra.episode`` with the simulator as its
+observation source). Also the worker-process side of parallel evaluation (one env and the
 runners it needs, cached per process)."""
 
 from __future__ import annotations
@@ -10,7 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nostra.sim.noise import NoiseSchedule
+from nostra import episode
+from nostra.noise import NoiseSchedule
 
 
 @dataclass
@@ -42,56 +44,45 @@ def run_episode(env, runner, job: EpisodeJob) -> EpisodeResult:
     """Roll out until success or the horizon (robomimic's convention: stop at success)."""
     schedule = NoiseSchedule(job.noise, job.windows, job.noise_params)
     rng = np.random.default_rng([job.seed, 7])  # noise draws: the same for every variant
-    oracle = schedule.keys & set(runner.modality_names) if job.mode == "oracle" else None
-    obs = env.reset(seed=job.seed)
-    runner.reset()
-    rec = {"action": [], "eef_pos": [], "noise": [], "kl": [], "imagined": []}
-    frames, success, t = [], False, 0
-    try:
-        for t in range(job.horizon):
-            seen = schedule.corrupt(obs, t)
-            if not all(np.isfinite(v).all() for v in seen.values() if v.dtype.kind == "f"):
-                return _failed(job, t, rec, "simulation became unstable (non-finite observation)")
-            action, info = runner.step(seen, imagine=oracle if schedule.active(t) else None)
-            if job.video_path:
-                frames.append(seen.get("agentview_image"))
-            rec["action"].append(action), rec["eef_pos"].append(obs["robot0_eef_pos"])
-            rec["noise"].append(schedule.active(t)), rec["kl"].append(info.get("kl", {}))
-            rec["imagined"].append(info.get("imagined", {}))
-            schedule.prepare(env, t + 1, rng)
-            obs, _, _, step_info = env.step(np.clip(action, -1.0, 1.0))
-            if _unstable(env):
-                return _failed(job, t + 1, rec, "MuJoCo instability (bad QACC: the simulation diverged)")
-            if step_info["success"]:
-                success = True
-                break
-    finally:
-        schedule.close(env, t + 1)
-    if frames and frames[0] is not None:
-        _write_video(job.video_path, frames)
-    return EpisodeResult(job, success, t + 1, record=_pack(rec))
+    ep = episode.run(SimSource(env, job.seed), runner, schedule, job.mode, job.horizon, rng,
+                     frame_key="agentview_image" if job.video_path else None)
+    if ep.reason:
+        return EpisodeResult(job, False, ep.steps, reason=ep.reason, record=ep.record())
+    if ep.frames and ep.frames[0] is not None:
+        _write_video(job.video_path, ep.frames)
+    return EpisodeResult(job, ep.success, ep.steps, record=ep.record())
+
+
+class SimSource:
+    """The simulator as the episode engine's observation source (``nostra.episode``): scene noise is
+    set up before the simulator step that renders the observation it affects."""
+
+    def __init__(self, env, seed: int):
+        self.env, self.seed = env, seed
+
+    def reset(self, schedule, rng) -> dict:
+        return self.env.reset(seed=self.seed)
+
+    def unusable(self, obs: dict) -> str:
+        if not all(np.isfinite(v).all() for v in obs.values() if v.dtype.kind == "f"):
+            return "simulation became unstable (non-finite observation)"
+        return ""
+
+    def step(self, action, schedule, t: int, rng):
+        schedule.prepare(self.env, t, rng)
+        obs, _, _, info = self.env.step(np.clip(action, -1.0, 1.0))
+        if _unstable(self.env):
+            return obs, False, "MuJoCo instability (bad QACC: the simulation diverged)"
+        return obs, bool(info["success"]), ""
+
+    def close(self, schedule, t: int) -> None:
+        schedule.close(self.env, t)
 
 
 def _unstable(env) -> bool:
     import mujoco
 
     return env.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0
-
-
-def _failed(job, t, rec, reason) -> EpisodeResult:
-    return EpisodeResult(job, False, t, reason=reason, record=_pack(rec))
-
-
-def _pack(rec: dict) -> dict:
-    out = {"action": np.asarray(rec["action"], np.float32).reshape(len(rec["action"]), -1),
-           "eef_pos": np.asarray(rec["eef_pos"], np.float32).reshape(len(rec["eef_pos"]), -1),
-           "noise": np.asarray(rec["noise"], bool)}
-    for name in ("kl", "imagined"):
-        keys = sorted({k for row in rec[name] for k in row})
-        for k in keys:
-            out[f"{name}/{k}"] = np.asarray([row.get(k, np.nan) for row in rec[name]],
-                                            np.float32 if name == "kl" else bool)
-    return out
 
 
 def _write_video(path: str, frames: list) -> None:
