@@ -5,8 +5,8 @@ import json
 
 import numpy as np
 
-from nostra.imagination import adamli_flags, detection_scores
-from nostra.synthetic import kl_trace
+from nostra.policies.imagination import adamli_flags, detection_scores
+from nostra.sim.synthetic import kl_trace
 
 WINDOWS = {"stack [25,75)+[100,150)": [(25, 75), (100, 150)], "others [75,100)+[125,150)": [(75, 100), (125, 150)]}
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from nostra.evaluation import jobs_of, run_jobs, EvalSpec, Variant
+from nostra.workflows.evaluation import jobs_of, run_jobs, EvalSpec, Variant
 from nostra.modality import paper_modalities
 from nostra.policies import NostraPolicy
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nostra.imagination import in_windows, window_mask
+from nostra.policies.imagination import in_windows, window_mask
 
 RGB_KEYS = ("agentview_image", "robot0_eye_in_hand_image")
 DEPTH_KEYS = ("agentview_depth",)

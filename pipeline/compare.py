@@ -7,7 +7,7 @@ from pipeline._hydra import run
 
 
 def _app(cfg) -> None:
-    from nostra.report import write_report
+    from nostra.workflows.report import write_report
 
     index = write_report(cfg.report.compare_dir, cfg.report.experiment, only=["table4_finetune", "table5_cotrain"])
     print(index.read_text())

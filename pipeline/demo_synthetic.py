@@ -1,4 +1,4 @@
-"""Synthetic end-to-end run of the three policies (the oscillator task of nostra/synthetic.py):
+"""Synthetic end-to-end run of the three policies (the oscillator task of nostra/sim/synthetic.py):
 train each with Lightning, then measure the per-modality KL and the action error inside a window
 where one sensor is stuck, with and without (adaptive) latent imagination. Writes Markdown + PNG.
 
@@ -19,8 +19,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from nostra import episode  # noqa: E402
-from nostra import synthetic as S  # noqa: E402
-from nostra.imagination import window_mask  # noqa: E402
+from nostra.sim import synthetic as S  # noqa: E402
+from nostra.policies.imagination import window_mask  # noqa: E402
 from nostra.policies import policy_module, runner_class  # noqa: E402
 from nostra.noise import Injector, NoiseSchedule  # noqa: E402
 
@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
 
     report = "\n".join([
         "# Synthetic check of the policies", "",
-        "Oscillator task (`nostra/synthetic.py`): actions follow a hidden rotating point; `pos` and `vel`",
+        "Oscillator task (`nostra/sim/synthetic.py`): actions follow a hidden rotating point; `pos` and `vel`",
         "observe it, `distractor` is white noise. Not robot data: a check that the models show the",
         f"paper's effects where the answer is known. {len(data['actions'])} training episodes,",
         f"{args.train_steps} steps per model, {args.episodes} test episodes.", "",

@@ -10,7 +10,7 @@ from pipeline._hydra import run
 
 
 def _rollouts(cfg, e) -> None:
-    from nostra.evaluation import EvalSpec, Variant, evaluate
+    from nostra.workflows.evaluation import EvalSpec, Variant, evaluate
     from nostra.policies.checkpoint import select_checkpoint
 
     variants = [Variant(name, select_checkpoint(v["checkpoint"], e.checkpoint), v.get("mode", "closed"),
@@ -46,9 +46,9 @@ def _run_dir(checkpoint: str) -> Path:
 
 
 def _offline(cfg, e) -> None:
-    from nostra.analysis import OfflineSpec, analyse
+    from nostra.workflows.analysis import OfflineSpec, analyse
     from nostra.data.dataset import held_out_episodes
-    from nostra.tracking import Tracker
+    from nostra.workflows.tracking import Tracker
 
     o = e.offline
     collections = OmegaConf.to_container(o.collections, resolve=True)

@@ -6,7 +6,7 @@ from pipeline._hydra import run
 
 
 def _app(cfg) -> None:
-    from nostra.report import write_report
+    from nostra.workflows.report import write_report
 
     index = write_report(cfg.report.out_dir, cfg.report.experiment)
     print(index.read_text())

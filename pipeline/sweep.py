@@ -15,7 +15,7 @@ from pipeline._hydra import run
 
 
 def main(argv: list[str]) -> int:
-    from nostra.tracking import Tracker
+    from nostra.workflows.tracking import Tracker
 
     if any(a in ("-h", "--help") for a in argv):
         print(__doc__)

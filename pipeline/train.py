@@ -8,8 +8,8 @@ from pipeline._hydra import run
 
 
 def _app(cfg) -> None:
-    from nostra.training import TrainSpec, train
-    from nostra.training_rollouts import RolloutConfig
+    from nostra.workflows.training import TrainSpec, train
+    from nostra.workflows.training_rollouts import RolloutConfig
 
     t = cfg.train
     collections = OmegaConf.to_container(t.collections, resolve=True)

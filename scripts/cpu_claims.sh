@@ -3,7 +3,7 @@
 # the make-cpu cells through scripts/cpu.sh (every training seed), then every Table 1 cell
 # {none, mask, cam_jitter, table_tex} and the controls {clean_windows, blind} for the best and the
 # last checkpoint, 50 episodes each on the same initial states, and writes reports/cpu/<task>/claims/
-# (python -m nostra.claims: tables per seed and pooled, paired tests, verdicts).
+# (python -m nostra.workflows.claims: tables per seed and pooled, paired tests, verdicts).
 #
 # Resumable: a cell whose records exist is kept, training continues from last.ckpt.
 #   TASK=liftd1 SEEDS="0 1" MODELS="lstm nostra" make cpu-claims    # MODELS may add rssm diffusion
@@ -65,7 +65,7 @@ for seed in $SEEDS; do
   done
 done
 
-python -m nostra.claims --evaluations "$EVAL" --out "reports/cpu/$TASK/claims" \
+python -m nostra.workflows.claims --evaluations "$EVAL" --out "reports/cpu/$TASK/claims" \
   --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} make cpu-claims" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: reports/cpu/$TASK/claims/claims.md"

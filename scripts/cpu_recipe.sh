@@ -76,7 +76,7 @@ nostra ingest $COMMON "ingest.sources=[$raw]" ingest.progress=false
 train recipe-nonoise-lstm ${TASK}_clean
 evaluate nonoise lstm "$RUNS/train/recipe-nonoise-lstm/policy.ckpt" last
 
-python -m nostra.cpu_report recipe --evaluations "$EV" --task "$TASK" --steps "$STEPS" \
+python -m nostra.workflows.cpu_report recipe --evaluations "$EV" --task "$TASK" --steps "$STEPS" \
   --out reports/cpu/$TASK/recipe.md --command "TASK=$TASK STEPS=$STEPS make cpu-recipe" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: reports/cpu/$TASK/recipe.md"

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from nostra.imagination import AdaMLI, AdaMLIConfig, KLSwitch, adamli_flags, detection_scores, window_mask
-from nostra.synthetic import kl_trace
+from nostra.policies.imagination import AdaMLI, AdaMLIConfig, KLSwitch, adamli_flags, detection_scores, window_mask
+from nostra.sim.synthetic import kl_trace
 
 PAPER_WINDOWS = {"stack": [(25, 75), (100, 150)], "other": [(75, 100), (125, 150)]}
 

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from conftest import fit, small_net
-from nostra import synthetic as S
+from nostra.sim import synthetic as S
 from nostra.policies import policy_module, runner_class
 from nostra.policies.checkpoint import CheckpointError, load_net, load_runner
 

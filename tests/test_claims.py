@@ -5,8 +5,8 @@ that are 'not testable' unless the preconditions hold."""
 import numpy as np
 import pytest
 
-from nostra.claims import load_records, paired_table, success_table, verdicts, write_report
-from nostra.sim.noise import NoiseSchedule
+from nostra.workflows.claims import load_records, paired_table, success_table, verdicts, write_report
+from nostra.noise import NoiseSchedule
 
 
 def _write(root, seed, ck, noise, variant, successes, imagined=None, folder="cell"):

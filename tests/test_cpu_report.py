@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pandas as pd
 
-from nostra import cpu_report
+from nostra.workflows import cpu_report
 
 
 def _success(path, rows):

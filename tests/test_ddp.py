@@ -18,9 +18,9 @@ from nostra.data.dataset import MixtureSampler, WindowSampler, make_loader
 from nostra.data.fixtures import write_robomimic
 from nostra.data.store import Store
 from nostra.policies.checkpoint import load_net
-from nostra.tracking import search_runs
-from nostra.training import TrainSpec, train
-from nostra.training_rollouts import RolloutConfig
+from nostra.workflows.tracking import search_runs
+from nostra.workflows.training import TrainSpec, train
+from nostra.workflows.training_rollouts import RolloutConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 NOSTRA = str(Path(sys.executable).with_name("nostra"))
@@ -100,7 +100,7 @@ def test_ddp_strategies_get_the_long_timeout_and_nostras_launcher(tmp_path):
 
     from lightning.pytorch.strategies import DDPStrategy
 
-    from nostra.ddp import NostraDDP, trainer_kwargs
+    from nostra.workflows.ddp import NostraDDP, trainer_kwargs
 
     def strategy(name):
         kw = trainer_kwargs({"strategy": name}, {}, tmp_path / "spec.json", timeout_minutes=90)

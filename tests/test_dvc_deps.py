@@ -251,7 +251,7 @@ def test_the_derivation_sees_what_the_issue_found_missing():
     assert {"nostra/data/stats.py", "nostra/policies/base.py", "nostra/models/rssm.py",
             "pipeline/evaluate.py", "pipeline/_hydra.py"} <= train
     evaluate = {f.relative_to(ROOT).as_posix() for f in _stage_code("evaluate").values()}
-    assert {"nostra/imagination.py", "nostra/policies/checkpoint.py", "nostra/data/stats.py"} <= evaluate
+    assert {"nostra/policies/imagination.py", "nostra/policies/checkpoint.py", "nostra/data/stats.py"} <= evaluate
     files, _ = conf_reads("train", ("model=lstm", "task=lift", "profile=tiny"))
     assert {"conf/config.yaml", "conf/model/lstm.yaml", "conf/data/default.yaml", "conf/train/default.yaml",
             "conf/task/lift.yaml", "conf/profile/tiny.yaml"} <= files

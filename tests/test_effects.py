@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from conftest import SMALL_NET, fit
-from nostra import synthetic as S
-from nostra.imagination import detection_scores
+from nostra.sim import synthetic as S
+from nostra.policies.imagination import detection_scores
 from nostra.policies import NostraPolicy, NostraRunner
 
 STEPS, WINDOW = 40, (20, 30)

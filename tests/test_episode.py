@@ -13,9 +13,9 @@ import torch
 
 from conftest import SMALL_NET
 from nostra import episode
-from nostra import synthetic as S
+from nostra.sim import synthetic as S
 from nostra.episode import RecordedSource, oracle_keys
-from nostra.imagination import AdaMLIConfig, in_windows, window_mask
+from nostra.policies.imagination import AdaMLIConfig, in_windows, window_mask
 from nostra.modality import Modality
 from nostra.noise import NOISES, NoiseSchedule
 from nostra.policies import LSTMNet, LSTMRunner, NostraNet, NostraRunner, RSSMNet, RSSMRunner
@@ -58,7 +58,7 @@ class _Frame:
 
 
 def _old_replay(runner, obs, length, schedule, imagine_keys, image_size, seed):
-    """nostra/analysis.py's _replay before issue 14."""
+    """nostra/workflows/analysis.py's _replay before issue 14."""
     rng = np.random.default_rng([seed, 7])
     frame = _Frame(image_size)
     runner.reset()
@@ -261,6 +261,6 @@ def test_oracle_keys():
 
 
 def test_engine_and_noise_need_no_simulator():
-    code = ("import sys, nostra.episode, nostra.noise, nostra.analysis; "
+    code = ("import sys, nostra.episode, nostra.noise, nostra.workflows.analysis; "
             "bad = [m for m in ('mujoco', 'robosuite') if m in sys.modules]; assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -9,12 +9,12 @@ import pytest
 import torch
 
 from conftest import small_net
-from nostra.analysis import OfflineSpec, analyse
+from nostra.workflows.analysis import OfflineSpec, analyse
 from nostra.data.fixtures import write_robomimic
 from nostra.data.store import Store
-from nostra.evaluation import EvalSpec, Variant, evaluate, wilson
-from nostra.sim.noise import NoiseSchedule
-from nostra.training import TrainSpec, train
+from nostra.workflows.evaluation import EvalSpec, Variant, evaluate, wilson
+from nostra.noise import NoiseSchedule
+from nostra.workflows.training import TrainSpec, train
 
 pytestmark = pytest.mark.sim
 KEYS = ["agentview_image", "robot0_eye_in_hand_image", "agentview_depth", "robot0_eef_pos", "robot0_eef_quat",

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from conftest import SMALL_NET
-from nostra import synthetic as S
-from nostra.imagination import AdaMLIConfig
+from nostra.sim import synthetic as S
+from nostra.policies.imagination import AdaMLIConfig
 from nostra.models.rssm import MultimodalRSSM, diag_kl
 from nostra.policies import NostraNet, NostraRunner, RSSMNet, RSSMRunner
 

@@ -113,7 +113,7 @@ def test_graph_sees_the_policy_modules():
     assert "nostra.policies.base" in graph["nostra.policies.checkpoint"]
     assert "nostra.policies" in graph["nostra.policies.checkpoint"]  # the registry
     assert "nostra.policies.base" in graph["nostra.policies.diffusion"]
-    assert "nostra.policies.checkpoint" in graph["nostra.training"]
+    assert "nostra.policies.checkpoint" in graph["nostra.workflows.training"]
 
 
 def test_no_import_cycle_through_nostra_policies():

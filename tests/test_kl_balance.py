@@ -5,7 +5,7 @@ import torch
 from torch.distributions import Normal
 
 from conftest import SMALL_NET
-from nostra import synthetic as S
+from nostra.sim import synthetic as S
 from nostra.models.rssm import balanced_kl, diag_kl
 from nostra.policies import NostraNet
 

@@ -15,9 +15,9 @@ from nostra.modality import Modality
 from nostra.models.encoders import ImageAug
 from nostra.policies import LSTMNet, LSTMRunner, NostraNet, NostraRunner
 from nostra.policies.checkpoint import select_checkpoint
-from nostra.sim.noise import NoiseSchedule
-from nostra.training import TrainSpec, train
-from nostra.training_rollouts import RolloutConfig
+from nostra.noise import NoiseSchedule
+from nostra.workflows.training import TrainSpec, train
+from nostra.workflows.training_rollouts import RolloutConfig
 
 MODS = [Modality("agentview_image", "rgb", (40, 40, 3)), Modality("robot0_eef_pos", "lowdim", (3,))]
 
@@ -159,7 +159,7 @@ def test_windows_override_from_the_command_line_reaches_evaluation_and_training_
 
 
 def test_bad_windows_fail_before_any_worker_starts(tmp_path):
-    from nostra.evaluation import EvalSpec, validate
+    from nostra.workflows.evaluation import EvalSpec, validate
 
     spec = EvalSpec(tasks=["Lift"], noises=["none", "mask"], variants=[], out_dir=str(tmp_path),
                     windows={"Lift": [[0, 10]]})

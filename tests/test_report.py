@@ -4,8 +4,8 @@ newest run wins, and missing runs show as a dash with the reason instead of a cr
 import pandas as pd
 import pytest
 
-from nostra.report import write_report
-from nostra.tracking import Tracker
+from nostra.workflows.report import write_report
+from nostra.workflows.tracking import Tracker
 
 
 @pytest.fixture(autouse=True)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from nostra.tracking import Tracker, search_runs, tracking_uri
+from nostra.workflows.tracking import Tracker, search_runs, tracking_uri
 
 
 def _free_port() -> int:

@@ -11,8 +11,8 @@ from nostra.data.dataset import held_out_episodes, split_episodes
 from nostra.data.fixtures import write_robomimic
 from nostra.data.store import Store
 from nostra.policies.checkpoint import CheckpointError, load_runner
-from nostra.tracking import search_runs
-from nostra.training import TrainSpec, train
+from nostra.workflows.tracking import search_runs
+from nostra.workflows.training import TrainSpec, train
 
 KEYS = ["agentview_image", "robot0_eef_pos", "robot0_gripper_qpos"]
 

@@ -8,7 +8,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from conftest import fit, small_net
-from nostra import synthetic as S
+from nostra.sim import synthetic as S
 from nostra.policies import policy_module
 
 

@@ -359,7 +359,7 @@ def make_loader(store, collections: Iterable[str] | dict[str, float] | None = No
     ``ShardedSampler``): with ``num_samples`` (or mixture weights) each rank draws ``num_samples``
     windows per epoch, so an epoch has as many steps as in one process; without, the ranks share
     one pass over the windows. Lightning must not replace it (the trainer's
-    ``use_distributed_sampler=False``, as ``nostra.training`` sets)."""
+    ``use_distributed_sampler=False``, as ``nostra.workflows.training`` sets)."""
     if isinstance(collections, dict):
         weights, collections = dict(collections), list(collections)
     ds = SequenceDataset(store, collections, keys, seq_len, pad, episodes, cache_mb)

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from torch.distributions import Normal
 
-from nostra.imagination import AdaMLI, AdaMLIConfig
+from nostra.policies.imagination import AdaMLI, AdaMLIConfig
 from nostra.models.fusion import ModalityTransformer
 from nostra.models.heads import make_head
 from nostra.models.rssm import MultimodalRSSM, balanced_kl, diag_kl

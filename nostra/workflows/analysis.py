@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from nostra import episode
 from nostra.episode import Episode, RecordedSource, oracle_keys
-from nostra.imagination import detection_scores
+from nostra.policies.imagination import detection_scores
 from nostra.noise import NoiseSchedule, check_noise
 
 # noises that act on stored observations (camera jitter and texture swaps need the simulator)
@@ -53,7 +53,7 @@ def _replay(runner, obs: dict, horizon: int, schedule: NoiseSchedule, mode: str,
 def analyse(spec: OfflineSpec) -> dict:
     """Run the analyses; writes offline.md, kl_episode.png and returns the numbers."""
     from nostra.data.store import Store
-    from nostra.figures import kl_figure
+    from nostra.workflows.figures import kl_figure
     from nostra.policies.checkpoint import load_runner
 
     if spec.noise not in OFFLINE_NOISES:

@@ -74,7 +74,7 @@ def kl_trace(steps: int, windows: list[tuple[int, int]], seed: int = 0, base: fl
     wobbles smoothly (three random sinusoids, periods 20-100 steps, about ``wobble`` nats each),
     tiny step-to-step jitter, and about ``jump`` more nats inside each noise window.
     Returns (kl, truth mask)."""
-    from nostra.imagination import window_mask
+    from nostra.policies.imagination import window_mask
 
     rng = np.random.default_rng(seed)
     t = np.arange(steps)[:, None]

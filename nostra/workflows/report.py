@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nostra.variants import LABELS
+from nostra.workflows.variants import LABELS
 
 ROBUSTNESS_NOISES = ["none", "mask", "cam_jitter", "table_tex"]
 ADAMLI_NOISES = ["rgb", "rgbd", "all"]
@@ -30,7 +30,7 @@ CHECKPOINT_TITLES = {"last": "final checkpoint", "best": "peak over checkpoints 
 
 
 def runs(experiment: str, uri: str | None = None) -> pd.DataFrame:
-    from nostra.tracking import search_runs
+    from nostra.workflows.tracking import search_runs
 
     df = search_runs(experiment, uri)
     return df.sort_values("start_time") if len(df) else df
@@ -195,7 +195,7 @@ def _figures(df: pd.DataFrame, folder: Path, uri: str | None) -> list[Path]:
         return []
     from mlflow.tracking import MlflowClient
 
-    from nostra.tracking import tracking_uri
+    from nostra.workflows.tracking import tracking_uri
 
     client, found = MlflowClient(uri or tracking_uri()), []
     folder.mkdir(parents=True, exist_ok=True)

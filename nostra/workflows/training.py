@@ -15,13 +15,13 @@ from pathlib import Path
 import lightning as L
 from lightning.pytorch.callbacks import ModelCheckpoint
 
-from nostra import ddp
+from nostra.workflows import ddp
 from nostra.data.dataset import SPLIT_FILE, make_loader, save_split, split_episodes
 from nostra.data.store import Store
 from nostra.policies import policy_module
 from nostra.policies.checkpoint import load_net
-from nostra.tracking import Tracker, TrackingLogger
-from nostra.training_rollouts import RolloutCallback, RolloutConfig
+from nostra.workflows.tracking import Tracker, TrackingLogger
+from nostra.workflows.training_rollouts import RolloutCallback, RolloutConfig
 
 STAGES = ("pretrain", "finetune", "cotrain")
 

@@ -19,7 +19,7 @@ from tqdm import tqdm
 
 from nostra.noise import NoiseSchedule
 from nostra.sim.rollout import EpisodeJob, EpisodeResult, init_worker, work
-from nostra.variants import LABELS, MODES
+from nostra.workflows.variants import LABELS, MODES
 ENV_KEYS = ("agentview_image", "robot0_eye_in_hand_image", "agentview_depth", "robot0_eef_pos",
             "robot0_eef_quat", "robot0_gripper_qpos")
 
@@ -197,8 +197,8 @@ def save_records(results: list[EpisodeResult], out: Path) -> None:
 
 
 def evaluate(spec: EvalSpec) -> pd.DataFrame:
-    from nostra.figures import trajectory_figure
-    from nostra.tracking import Tracker
+    from nostra.workflows.figures import trajectory_figure
+    from nostra.workflows.tracking import Tracker
 
     validate(spec)
     out = Path(spec.out_dir)

@@ -4,8 +4,8 @@ Reads what the runs wrote (run.json, rollouts.json, success.csv) and writes inde
 and learning_curves.png into the report folder. `recipe` writes the table of `make cpu-recipe`:
 which switch of the recipe moved success, by how much, with intervals.
 
-    python -m nostra.cpu_report --task liftd1 --runs data/runs/cpu --seeds 0 --models lstm nostra --out reports/cpu/liftd1
-    python -m nostra.cpu_report recipe --evaluations data/runs/cpu/evaluate/liftd1/recipe --task liftd1 --out recipe.md
+    python -m nostra.workflows.cpu_report --task liftd1 --runs data/runs/cpu --seeds 0 --models lstm nostra --out reports/cpu/liftd1
+    python -m nostra.workflows.cpu_report recipe --evaluations data/runs/cpu/evaluate/liftd1/recipe --task liftd1 --out recipe.md
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 
 from nostra.sim.tasks import get_task
-from nostra.variants import LABELS
+from nostra.workflows.variants import LABELS
 
 
 def machine() -> str:
@@ -149,9 +149,9 @@ def compare(a: dict[int, bool], b: dict[int, bool], paired: bool) -> str:
 
 
 def recipe_main(argv: list[str]) -> None:
-    from nostra.evaluation import wilson
+    from nostra.workflows.evaluation import wilson
 
-    ap = argparse.ArgumentParser(prog="python -m nostra.cpu_report recipe")
+    ap = argparse.ArgumentParser(prog="python -m nostra.workflows.cpu_report recipe")
     ap.add_argument("--evaluations", required=True)
     ap.add_argument("--task", required=True)
     ap.add_argument("--steps", type=int, default=1000)

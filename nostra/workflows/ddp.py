@@ -1,4 +1,4 @@
-"""Data-parallel training (DDP) for ``nostra.training.train``, on CPUs (gloo) or GPUs (NCCL).
+"""Data-parallel training (DDP) for ``nostra.workflows.training.train``, on CPUs (gloo) or GPUs (NCCL).
 
 ``train.trainer={accelerator: cpu, devices: 2, strategy: ddp}`` (or ``gpu`` with N devices) runs
 N processes, one per device. Each builds the same model and loader; the loader's sampler shards
@@ -9,7 +9,7 @@ run), writes ``metrics.jsonl``, ``run.json``, checkpoints and runs the in-traini
 Lightning's own launcher for ``strategy: ddp`` starts the other ranks by re-running the command
 line (``sys.argv``). That fails for ``nostra train`` (a Hydra app behind a console script), for
 ``python -m pipeline.cli train``, pytest and notebooks, so a DDP strategy named by a string is
-built here with a launcher that starts each other rank as ``python -m nostra.ddp <spec.json>``:
+built here with a launcher that starts each other rank as ``python -m nostra.workflows.ddp <spec.json>``:
 the same ``train()`` call, whatever started rank 0. Where processes are created outside (Slurm's
 ``srun`` with one task per device, ``torchrun``), nothing is launched and Lightning's cluster
 environment gives the ranks.
@@ -37,12 +37,12 @@ from lightning.pytorch.strategies.launchers.subprocess_script import _Subprocess
 from lightning.pytorch.utilities import rank_zero_warn
 
 # the directory holding the nostra package: children import the same code as rank 0
-_CODE_ROOT = str(Path(__file__).resolve().parents[1])
+_CODE_ROOT = str(Path(__file__).resolve().parents[2])
 _ENV_KEYS = ("MASTER_ADDR", "MASTER_PORT", "NODE_RANK", "LOCAL_RANK", "WORLD_SIZE")
 
 
 class _SpecLauncher(_SubprocessScriptLauncher):
-    """Lightning's subprocess launcher, starting ranks 1.. as ``python -m nostra.ddp <spec.json>``
+    """Lightning's subprocess launcher, starting ranks 1.. as ``python -m nostra.workflows.ddp <spec.json>``
     instead of re-running sys.argv (environment, process observer and the rest as Lightning's)."""
 
     def __init__(self, cluster_environment, num_processes: int, num_nodes: int, spec: dict, spec_file: Path):
@@ -66,12 +66,12 @@ class _SpecLauncher(_SubprocessScriptLauncher):
             env.pop("PL_GLOBAL_SEED", None)
         for local_rank in range(1, self.num_processes):
             env["LOCAL_RANK"] = str(local_rank)
-            cmd = [sys.executable, "-m", "nostra.ddp", str(self.spec_file.resolve())]
+            cmd = [sys.executable, "-m", "nostra.workflows.ddp", str(self.spec_file.resolve())]
             self.procs.append(subprocess.Popen(cmd, env=dict(env)))
 
 
 class NostraDDP(DDPStrategy):
-    """DDPStrategy whose local launcher starts the other ranks through ``nostra.ddp``."""
+    """DDPStrategy whose local launcher starts the other ranks through ``nostra.workflows.ddp``."""
 
     def __init__(self, spec: dict, spec_file: Path, **kwargs):
         super().__init__(**kwargs)
@@ -170,9 +170,9 @@ class ReplicaCheck(L.Callback):
 
 
 def main(argv: list[str] | None = None) -> None:
-    """A rank started by _SpecLauncher: ``python -m nostra.ddp <spec.json>``."""
-    from nostra.training import TrainSpec, train
-    from nostra.training_rollouts import RolloutConfig
+    """A rank started by _SpecLauncher: ``python -m nostra.workflows.ddp <spec.json>``."""
+    from nostra.workflows.training import TrainSpec, train
+    from nostra.workflows.training_rollouts import RolloutConfig
 
     argv = sys.argv[1:] if argv is None else argv
     spec = json.loads(Path(argv[0]).read_text())

@@ -1,6 +1,6 @@
 """Rollouts during training (robomimic's habit): every ``every`` steps the policy as it stands is
 saved as ``checkpoints/step=<n>.ckpt`` and rolled out in the simulator on fixed seeds that no demo
-used, through the evaluation code (``nostra.evaluation.run_jobs``: the same episode loop, worker
+used, through the evaluation code (``nostra.workflows.evaluation.run_jobs``: the same episode loop, worker
 processes and noise schedules as ``nostra evaluate``). Success goes to MLflow as
 ``rollout/<task>/<noise>/<variant>`` at that step; the checkpoint with the best success on the
 first noise and variant (clean, closed loop by default) is copied to ``checkpoints/best.ckpt``.
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import lightning as L
 
-from nostra.variants import MODES
+from nostra.workflows.variants import MODES
 
 # variant id suffix of each imagination mode, as in the evaluation tables (nostra_mli, rssm_li, ...)
 SUFFIX = {"closed": "", "oracle": "_mli", "adaptive": "_adamli"}
@@ -88,7 +88,7 @@ class RolloutCallback(L.Callback):
 
     # ---- one check -------------------------------------------------------------------------
     def check(self, trainer, episodes: int) -> dict:
-        from nostra.evaluation import run_jobs, wilson
+        from nostra.workflows.evaluation import run_jobs, wilson
         from nostra.sim.rollout import EpisodeJob
 
         step, start = trainer.global_step, time.time()

@@ -3,7 +3,7 @@ controls, the paired comparisons and a verdict per claim, all read from the epis
 `nostra evaluate` wrote (records/<task>/<noise>/<variant>_seed<k>.npz under any folder of
 <runs>/evaluate/<task>/s<training seed>/<checkpoint>/).
 
-    python -m nostra.claims --evaluations data/runs/cpu/evaluate/liftd1 --out reports/cpu/liftd1/claims
+    python -m nostra.workflows.claims --evaluations data/runs/cpu/evaluate/liftd1 --out reports/cpu/liftd1/claims
 
 Every variant meets the same initial states (episode seed k), so variants are compared paired: the
 difference in points with a 95% percentile-bootstrap interval of the mean paired difference
@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nostra.evaluation import wilson
-from nostra.variants import LABELS
+from nostra.workflows.evaluation import wilson
+from nostra.workflows.variants import LABELS
 
 TABLE1_NOISES = ["none", "mask", "cam_jitter", "table_tex"]
 CONTROL_NOISES = ["clean_windows", "blind"]
@@ -200,7 +200,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--command", default=None, help="the command that made the evaluations (for the header)")
     ap.add_argument("--wall-seconds", type=float, default=None)
     args = ap.parse_args(argv)
-    from nostra.cpu_report import machine
+    from nostra.workflows.cpu_report import machine
 
     header = [f"- Machine: {machine()}", f"- Evaluations: `{args.evaluations}`"]
     if args.command:
