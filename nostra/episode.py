@@ -1,6 +1,6 @@
 """The one episode engine: a policy runner stepped through an episode under a noise schedule, with
 what happened at every step recorded. Simulator rollouts (``nostra.sim.rollout``), the offline
-analysis on held-out demos (``nostra.workflows.analysis``) and the synthetic demo (``pipeline/demo_synthetic``)
+analysis on held-out demos (``nostra.workflows.analysis``) and the synthetic demo (``bench/synthetic_demo.py``)
 all run their episodes here; they differ only in where the observations come from.
 
 An observation source has four methods (the engine imports no simulator; see
