@@ -35,6 +35,9 @@ def project(tmp_path_factory):
     return root
 
 
+# ~30 stage processes, each paying ~8 s of imports (lightning pulls torchmetrics and transformers):
+# ~11 min on the 2-core machine, over the suite's default per-test limit
+@pytest.mark.timeout(1500)
 def test_repro_then_nothing_then_only_what_changed(project):
     first = _dvc(project, "repro")
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
