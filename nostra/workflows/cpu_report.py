@@ -134,16 +134,15 @@ RECIPE = [
 def compare(a: dict[int, bool], b: dict[int, bool], paired: bool) -> str:
     """Difference a - b in points with a 95% interval; McNemar's exact p where paired, else
     Newcombe's interval for two independent proportions."""
-    from statsmodels.stats.contingency_tables import mcnemar
     from statsmodels.stats.proportion import confint_proportions_2indep
+
+    from nostra.workflows.claims import paired as paired_test
 
     ka, na, kb, nb = sum(a.values()), len(a), sum(b.values()), len(b)
     diff = 100 * (ka / na - kb / nb)
-    if paired:
-        seeds = sorted(set(a) & set(b))
-        t = [[sum(a[s] and b[s] for s in seeds), sum(a[s] and not b[s] for s in seeds)],
-             [sum(b[s] and not a[s] for s in seeds), sum(not a[s] and not b[s] for s in seeds)]]
-        return f"{diff:+.0f} (McNemar exact p = {mcnemar(t, exact=True).pvalue:.2g})"
+    if paired:  # the claims report's paired test, over the seeds both evaluated
+        p = paired_test(pd.Series(a, dtype=bool), pd.Series(b, dtype=bool))["p"]
+        return f"{diff:+.0f} (McNemar exact p = {p:.2g})"
     lo, hi = confint_proportions_2indep(ka, na, kb, nb, method="newcomb")
     return f"{diff:+.0f} [{100 * lo:+.0f}, {100 * hi:+.0f}]"
 
