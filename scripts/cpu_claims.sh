@@ -46,9 +46,30 @@ needed() {  # $1 = noise
 ALL="lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli"
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 COMMON="profile=cpu task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
+# a model whose last checkpoint is its best (the final check was the best) has the same weights under
+# both names: its last cells are copies of its best cells (folder `same-as-best`), not a second run
+same_as_best() {  # $1 = model, $2 = training seed
+  python - "$RUNS/train/pretrain-$1-$NAME-s$2/run.json" <<'PY'
+import json, sys
+run = json.load(open(sys.argv[1]))
+sys.exit(0 if ((run.get("rollouts") or {}).get("best") or {}).get("step") == run["steps"] else 1)
+PY
+}
+model_of() { case $1 in nostra*) echo nostra ;; rssm*) echo rssm ;; *) echo "$1" ;; esac; }
+reuse_best() {  # $1 = seed, $2 = noise, $3... = variants: copy each variant's best records into last
+  local seed=$1 noise=$2 v src dst; shift 2
+  for v in "$@"; do
+    same_as_best "$(model_of "$v")" "$seed" || continue
+    src=$(compgen -G "$EVAL/s$seed/best/$noise/**/records/$NAME/$noise/${v}_seed*.npz" ||
+          compgen -G "$EVAL/s$seed/best/$noise/records/$NAME/$noise/${v}_seed*.npz") || continue
+    dst=$EVAL/s$seed/last/$noise/same-as-best/records/$NAME/$noise
+    mkdir -p "$dst" && cp $src "$dst/" && log "seed $seed last $noise $v: same checkpoint as best, records copied"
+  done
+}
 for seed in $SEEDS; do
   for ck in best last; do
     for noise in none mask cam_jitter table_tex clean_windows blind; do
+      [ $ck = last ] && reuse_best "$seed" "$noise" $(needed $noise)
       todo=""
       for v in $(needed $noise); do  # kept: a variant with records of this cell (make cpu's folder or ours)
         compgen -G "$EVAL/s$seed/$ck/$noise/**/records/$NAME/$noise/${v}_seed*.npz" > /dev/null ||

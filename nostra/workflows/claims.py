@@ -205,6 +205,10 @@ def main(argv: list[str] | None = None) -> None:
     header = [f"- Machine: {machine()}", f"- Evaluations: `{args.evaluations}`"]
     if args.command:
         header.insert(0, f"- Command: `{args.command}`")
+    copied = sorted(str(p.relative_to(args.evaluations)) for p in args.evaluations.glob("s*/last/*/same-as-best"))
+    if copied:
+        header.append("- Last checkpoint = best checkpoint (the final check was the best): those cells are the best "
+                      f"cells' records, copied, not re-run: {', '.join(f'`{c}`' for c in copied)}")
     if args.wall_seconds:
         header.append(f"- Wall time of the command: {args.wall_seconds / 60:.0f} min")
     print(write_report(args.evaluations, args.out, header + [""]))
