@@ -150,7 +150,8 @@ def test_generate_two_demos_with_two_workers(tmp_path):
     assert sorted(p.name for p in out.parent.iterdir()) == ["lift_test.hdf5"]  # no temporary file left
     with h5py.File(out, "r") as f:
         assert set(f) == {"data", "mask"} and set(f["data"]) == {"demo_0", "demo_1"}
-        assert set(f["data"].attrs) == {"total", "env_args"}
+        assert set(f["data"].attrs) == {"total", "env_args", "next_obs_derived"}
+        assert not f["data"].attrs["next_obs_derived"]  # the simulator's real next observations
         env_args = json.loads(f["data"].attrs["env_args"])
         assert env_args["env_name"] == "Lift" and env_args["type"] == 1
         assert env_args["env_kwargs"]["camera_heights"] == 32 and env_args["env_kwargs"]["robots"] == "Panda"

@@ -26,27 +26,25 @@ by the absolute path of the installation that generated it.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from multiprocessing import get_context
-from pathlib import Path
 from typing import Callable, Iterator, Mapping
 
-import h5py
 import numpy as np
 from tqdm import tqdm
 
+from nostra.data.episode import Episode
+from nostra.data.formats import robomimic_hdf5
 from nostra.sim.env import make_env, robomimic_env_args, robosuite_kwargs
 from nostra.sim.experts import make_expert
 from nostra.sim.tasks import get_task
 from nostra.sim.variations import Variation, sample_variation
 
 RECORDS = ("executed", "expert")  # which action a noise-injected demo stores
-META_JSON = ("objects", "camera_pose", "object_placements", "variation")  # nested values: JSON strings
 
 
 @dataclass
@@ -182,57 +180,6 @@ def _episodes(cfg: GenerateConfig, wanted: Callable[[], int]) -> Iterator[dict]:
 
 # ---- the HDF5 file ----------------------------------------------------------------------------
 
-class RobomimicWriter:
-    """Writes demos to `<path>.tmp` and renames it to `path` on `close()`; `abort()` removes it."""
-
-    def __init__(self, path: str | os.PathLike, env_args: dict):
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
-        self.file = h5py.File(self.tmp, "w")
-        self.data = self.file.create_group("data")
-        self.env_args, self.names, self.total = env_args, [], 0
-
-    def add(self, episode: dict) -> str:
-        name = f"demo_{len(self.names)}"
-        g = self.data.create_group(name)
-        n = len(episode["actions"])
-        g.attrs["num_samples"] = n
-        g.attrs["model_file"] = episode["model_file"]
-        for key, value in episode["meta"].items():
-            g.attrs[key] = json.dumps(value) if key in META_JSON else value
-        for key in ("states", "actions", "rewards", "dones"):
-            g.create_dataset(key, data=episode[key], track_times=False)
-        for key, frames in episode["obs"].items():
-            self._frames(g, f"obs/{key}", frames[:-1])
-            self._frames(g, f"next_obs/{key}", frames[1:])
-        self.names.append(name)
-        self.total += n
-        return name
-
-    @staticmethod
-    def _frames(g: h5py.Group, key: str, arr: np.ndarray) -> None:
-        if arr.ndim >= 3:  # images: one compressed chunk per frame
-            g.create_dataset(key, data=arr, chunks=(1, *arr.shape[1:]), compression="gzip", compression_opts=4,
-                             track_times=False)
-        else:
-            g.create_dataset(key, data=arr, track_times=False)
-
-    def close(self, valid_fraction: float = 0.1, seed: int = 0) -> Path:
-        self.data.attrs["total"] = self.total
-        self.data.attrs["env_args"] = json.dumps(self.env_args)
-        train, valid = split_names(self.names, valid_fraction, seed)
-        self.file.create_dataset("mask/train", data=np.array(train, dtype="S"), track_times=False)
-        self.file.create_dataset("mask/valid", data=np.array(valid, dtype="S"), track_times=False)
-        self.file.close()
-        os.replace(self.tmp, self.path)
-        return self.path
-
-    def abort(self) -> None:
-        self.file.close()
-        self.tmp.unlink(missing_ok=True)
-
-
 def split_names(names: list[str], valid_fraction: float, seed: int = 0) -> tuple[list[str], list[str]]:
     """A seeded train/valid split (at least one valid demo when there are two or more)."""
     order = np.random.default_rng(seed).permutation(len(names))
@@ -244,34 +191,48 @@ def split_names(names: list[str], valid_fraction: float, seed: int = 0) -> tuple
 
 
 def generate(cfg: GenerateConfig, progress: bool = True) -> dict:
-    """Collect `cfg.episodes` successful expert demos into `cfg.out`; returns a summary."""
+    """Collect `cfg.episodes` successful expert demos into `cfg.out` (robomimic's layout, written by
+    the one robomimic writer, which leaves nothing behind on failure); returns a summary."""
     start = time.time()
-    env_args = _env_args(cfg)
-    writer = RobomimicWriter(cfg.out, env_args)
-    kept = failed = 0
+    count = {"kept": 0, "failed": 0, "samples": 0}
     bar = tqdm(total=cfg.episodes, desc=f"generate {cfg.task}", unit="demo", disable=not progress)
+
+    def kept() -> Iterator[Episode]:
+        for episode in _episodes(cfg, wanted=lambda: cfg.episodes - count["kept"]):
+            if not episode["meta"]["success"]:
+                count["failed"] += 1
+                bar.set_postfix(failed=count["failed"])
+                continue
+            yield as_episode(f"demo_{count['kept']}", episode)
+            count["kept"] += 1
+            count["samples"] += len(episode["actions"])
+            bar.update(1)
+            if count["kept"] >= cfg.episodes:
+                return
+        if count["kept"] == 0:
+            raise RuntimeError(f"the {cfg.task} expert failed all {count['failed']} episodes; nothing written to {cfg.out}")
+
+    def split(names: list[str]) -> dict[str, list[str]]:
+        train, valid = split_names(names, cfg.valid_fraction, cfg.seed_offset)
+        return {"train": train, "valid": valid}
+
     try:
-        for episode in _episodes(cfg, wanted=lambda: cfg.episodes - kept):
-            if episode["meta"]["success"]:
-                writer.add(episode)
-                kept += 1
-                bar.update(1)
-            else:
-                failed += 1
-                bar.set_postfix(failed=failed)
-            if kept >= cfg.episodes:
-                break
-        if kept == 0:
-            raise RuntimeError(f"the {cfg.task} expert failed all {failed} episodes; nothing written to {cfg.out}")
-        path = writer.close(cfg.valid_fraction, cfg.seed_offset)
-    except BaseException:
-        writer.abort()
-        raise
+        path = robomimic_hdf5.write(cfg.out, kept(), _env_args(cfg), progress=False, split=split)
     finally:
         bar.close()
-    return {"path": str(path), "task": get_task(cfg.task).name, "demos": kept, "failed": failed,
-            "attempts": kept + failed, "expert_success_rate": round(kept / (kept + failed), 4),
-            "samples": writer.total, "seconds": round(time.time() - start, 1)}
+    kept_n, failed = count["kept"], count["failed"]
+    return {"path": str(path), "task": get_task(cfg.task).name, "demos": kept_n, "failed": failed,
+            "attempts": kept_n + failed, "expert_success_rate": round(kept_n / (kept_n + failed), 4),
+            "samples": count["samples"], "seconds": round(time.time() - start, 1)}
+
+
+def as_episode(demo_id: str, episode: dict) -> Episode:
+    """A rolled-out episode (N actions, N + 1 observation frames) as the writer's Episode."""
+    frames = episode["obs"]
+    return Episode(demo_id=demo_id, actions=episode["actions"], obs={k: v[:-1] for k, v in frames.items()},
+                   extras={k: episode[k] for k in ("states", "rewards", "dones")},
+                   meta={**episode["meta"], "model_file": episode["model_file"]},
+                   next_obs={k: v[-1:] for k, v in frames.items()})
 
 
 def _env_args(cfg: GenerateConfig) -> dict:

@@ -11,7 +11,7 @@ import json
 import os
 import re
 from pathlib import Path
-from typing import Iterable
+from typing import Callable, Iterable
 
 import h5py
 import numpy as np
@@ -171,13 +171,16 @@ NEXT_OBS_DERIVED = "next_obs/<key> derived by nostra: obs shifted by one step, t
 
 
 def write(path, episodes: Iterable[Episode], env_args: dict, total: int | None = None,
-          next_obs: bool = True, progress: bool = True, mask_names: Iterable[str] = ()) -> Path:
-    """Write episodes as a robomimic file. Written beside the target and renamed at the end, so a
-    failure never leaves a half-written file; no creation times (the same episodes, the same bytes).
-    ``next_obs`` is each obs shifted by one step, then the episode's ``next_last`` where it has one,
-    else the last step repeated; ``data.attrs``
-    ``next_obs_derived`` says which (and ``next_obs_note`` how). ``mask_names``: masks written even
-    when no demo is in them."""
+          next_obs: bool = True, progress: bool = True, mask_names: Iterable[str] = (),
+          split: Callable[[list[str]], dict[str, list[str]]] | None = None) -> Path:
+    """Write episodes as a robomimic file (the one writer: `nostra generate` and `nostra export`).
+    Written beside the target and renamed at the end, so a failure (an exception from the
+    ``episodes`` iterator included) never leaves a half-written file; no creation times (the same
+    episodes, the same bytes). ``next_obs`` is each obs shifted by one step, then the episode's
+    ``next_obs`` last step where it has one, else the last step repeated; ``data.attrs``
+    ``next_obs_derived`` says which (and ``next_obs_note`` how). Masks: each episode's
+    ``meta["masks"]``, plus ``split(demo names)`` computed once every demo is written (e.g. a seeded
+    train/valid split); ``mask_names`` are written even when no demo is in them."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
@@ -192,6 +195,8 @@ def write(path, episodes: Iterable[Episode], env_args: dict, total: int | None =
                 steps += len(ep)
                 for m in ep.meta.get("masks", []):
                     masks.setdefault(m, []).append(ep.demo_id)
+            for name, demos in (split(sorted(data, key=_natural)) if split else {}).items():
+                masks.setdefault(name, []).extend(demos)
             data.attrs["total"] = steps
             data.attrs["env_args"] = json.dumps(env_args)
             if next_obs:
@@ -224,12 +229,19 @@ def _write_demo(g, ep: Episode, next_obs: bool) -> bool:
         g.create_dataset(k, data=v, track_times=False)
     derived = False
     for k, v in ep.obs.items():
-        opts = {"compression": "gzip", "compression_opts": 4} if v.dtype == np.uint8 else {}
-        g.create_dataset(f"obs/{k}", data=v, chunks=True if opts else None, track_times=False, **opts)
+        _obs(g, f"obs/{k}", v)
         if next_obs:
             last = ep.next_obs.get(k)
             derived |= last is None
             last = v[-1:] if last is None else np.asarray(last)[-1:]
-            g.create_dataset(f"next_obs/{k}", data=np.concatenate([v[1:], last]), chunks=True if opts else None,
-                             track_times=False, **opts)
+            _obs(g, f"next_obs/{k}", np.concatenate([v[1:], last]))
     return derived
+
+
+def _obs(g, key: str, v: np.ndarray) -> None:
+    """Images gzip-compressed, one chunk per frame (a reader can fetch one step); others plain."""
+    if v.dtype == np.uint8 and v.ndim >= 3:
+        g.create_dataset(key, data=v, chunks=(1, *v.shape[1:]), compression="gzip", compression_opts=4,
+                         track_times=False)
+    else:
+        g.create_dataset(key, data=v, track_times=False)
