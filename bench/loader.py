@@ -56,7 +56,7 @@ def loader_rate(loader, batches: int) -> float:
 
 def train_rate(loader, steps: int = 3) -> float:
     ds = loader.dataset
-    module = NostraPolicy([m.to_dict() for m in ds.modalities()], ds.action_dim, net={"image_encoder": "light"})
+    module = NostraPolicy(ds.modalities(), ds.action_dim, net={"image_encoder": "light"})
     module.set_normalization(ds.stats())
     opt = torch.optim.Adam(module.parameters(), lr=1e-4)
     batch = next(iter(loader))

@@ -35,16 +35,11 @@ import time
 import numpy as np
 import torch
 
-from nostra.modality import Modality
+from nostra.modality import sim_observations
 from nostra.policies import POLICIES
 
-MODALITIES = [
-    Modality("agentview_image", "rgb", (84, 84, 3)),
-    Modality("robot0_eye_in_hand_image", "rgb", (84, 84, 3)),
-    Modality("robot0_eef_pos", "lowdim", (3,)),
-    Modality("robot0_eef_quat", "lowdim", (4,)),
-    Modality("robot0_gripper_qpos", "lowdim", (2,)),
-]
+# what the simulator renders at 84 px, but depth: two RGB views and the proprioception
+MODALITIES = [m for m in sim_observations(84).modalities if m.kind != "depth"]
 
 # name -> (policy, runner kwargs); policies added later extend this table.
 VARIANTS = {
@@ -118,7 +113,7 @@ def main() -> None:
     for name in names:
         policy, kwargs = VARIANTS[name]
         module_cls, runner_cls = POLICIES[policy]
-        net = module_cls([m.to_dict() for m in MODALITIES], 7, net={"image_encoder": "light"}).net
+        net = module_cls(MODALITIES, 7, net={"image_encoder": "light"}).net
         runner = runner_cls(net, **kwargs)
         times, planned = step_times_ms(runner, args.steps, args.warmup)
         stats = summarise(times, planned, cycle_length(runner))

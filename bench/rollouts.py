@@ -20,7 +20,7 @@ from nostra.policies import NostraPolicy
 
 
 def untrained_checkpoint(path: Path) -> str:
-    module = NostraPolicy([m.to_dict() for m in paper_modalities(84)], 7, net={"image_encoder": "light"})
+    module = NostraPolicy(paper_modalities(84), 7, net={"image_encoder": "light"})
     ckpt = {"state_dict": module.state_dict()}
     module.on_save_checkpoint(ckpt)
     torch.save(ckpt, path)

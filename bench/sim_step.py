@@ -54,7 +54,9 @@ def main() -> None:
 
     from PIL import Image
 
-    frame = np.concatenate([obs["agentview_image"], obs["robot0_eye_in_hand_image"]], axis=1)
+    from nostra.modality import sim_observations
+
+    frame = np.concatenate([obs[k] for k in sim_observations().rgb_keys], axis=1)
     Path(args.png).parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(frame).resize((frame.shape[1] * 3, frame.shape[0] * 3), Image.NEAREST).save(args.png)
     print(f"default render: {default_rate:.1f} steps/s, tuned: {tuned_rate:.1f} steps/s; frame -> {args.png}")

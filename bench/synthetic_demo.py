@@ -38,8 +38,7 @@ VARIANTS = {  # name -> (policy, runner kwargs, oracle imagination)
 
 def train(policy: str, data: dict, steps: int):
     torch.manual_seed(0)
-    module = policy_module(policy)([m.to_dict() for m in S.oscillator_modalities()], 2, net=NET[policy],
-                                   optim={"lr": 1e-3})
+    module = policy_module(policy)(S.oscillator_modalities(), 2, net=NET[policy], optim={"lr": 1e-3})
     module.set_normalization(S.stats_of(data))
     L.Trainer(max_steps=steps, accelerator="cpu", logger=False, enable_checkpointing=False,
               enable_model_summary=False).fit(module, S.loader(data, 32))

@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 import yaml
 
-from nostra.modality import Modality, kind_of_key
+from nostra.modality import Modality, sim_observations
 from nostra.policies import policy_module
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,15 +28,13 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def profile_shapes(name: str) -> dict:
     prof = yaml.safe_load((ROOT / "conf" / "profile" / f"{name}.yaml").read_text())
-    keys = prof.get("obs_keys") or yaml.safe_load((ROOT / "conf/data/default.yaml").read_text())["all_keys"]
+    keys = prof.get("obs_keys") or list(sim_observations().names)  # as conf/data: the profile's, else all
     return {"batch": prof["batch_size"], "seq": prof["seq_len"], "size": prof["image_size"], "keys": keys,
             "net": {"image_encoder": prof["image_encoder"], "image_aug": prof.get("image_aug", "none")}}
 
 
 def modalities(keys: list[str], size: int) -> list[Modality]:
-    shape = {"rgb": (size, size, 3), "depth": (size, size, 1)}
-    lowdim = {"robot0_eef_pos": (3,), "robot0_eef_quat": (4,), "robot0_gripper_qpos": (2,)}
-    return [Modality(k, kind_of_key(k), shape.get(kind_of_key(k)) or lowdim[k]) for k in keys]
+    return sim_observations(size).select(keys)
 
 
 def batch(mods: list[Modality], b: int, t: int) -> dict:
@@ -51,7 +49,7 @@ def batch(mods: list[Modality], b: int, t: int) -> dict:
 
 def measure(policy: str, mods, shapes: dict, steps: int, warmup: int = 2) -> dict:
     torch.manual_seed(0)
-    module = policy_module(policy)([m.to_dict() for m in mods], 7, net=dict(shapes["net"]))
+    module = policy_module(policy)(mods, 7, net=dict(shapes["net"]))
     module.train()
     opt = module.configure_optimizers()
     data = batch(mods, shapes["batch"], shapes["seq"])

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-EEF_KEY = "robot0_eef_pos"  # recorded alongside the actions when the observation has it
+from nostra.modality import EEF_POS as EEF_KEY  # recorded alongside the actions when the observation has it
 
 
 def oracle_keys(schedule, modality_names) -> set[str]:

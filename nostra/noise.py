@@ -19,13 +19,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from nostra.modality import sim_observations
 from nostra.policies.imagination import in_windows, window_mask
 
-RGB_KEYS = ("agentview_image", "robot0_eye_in_hand_image")
-DEPTH_KEYS = ("agentview_depth",)
-PROPRIO_KEYS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos")
-CAMERA_OF = {"agentview_image": "agentview", "robot0_eye_in_hand_image": "robot0_eye_in_hand",
-             "agentview_depth": "agentview"}
+# what the injectors corrupt: the simulator's modalities by kind (the observation contract)
+SIM = sim_observations()
+RGB_KEYS, DEPTH_KEYS, PROPRIO_KEYS = SIM.rgb_keys, SIM.depth_keys, SIM.lowdim_keys
 # never used by the generation knobs' defaults, so unseen in training unless configured there
 UNSEEN_TABLE_TEXTURE = "red-wood"
 
@@ -80,13 +79,13 @@ class CamJitter(Injector):
     """Agent-view and wrist camera positions jittered by N(0, std^2) per axis at every step."""
 
     std: float = 0.1
-    cameras: tuple[str, ...] = ("agentview", "robot0_eye_in_hand")
+    cameras: tuple[str, ...] = SIM.cameras
     _orig: dict = field(default_factory=dict, repr=False)
     needs_env = True
 
     @property
     def keys(self):
-        return tuple(k for k, cam in CAMERA_OF.items() if cam in self.cameras)
+        return tuple(m.name for m in SIM.modalities if m.camera in self.cameras)
 
     def begin(self, env, rng):
         self._orig = {env.camera_id(c): env.model.cam_pos[env.camera_id(c)].copy() for c in self.cameras}

@@ -21,7 +21,7 @@ def _app(cfg) -> None:
     model = OmegaConf.to_container(cfg.model, resolve=True)
     spec = TrainSpec(
         policy=model["policy"], store=cfg.data.store, collections=list(collections),
-        keys=list(t.obs_keys), out_dir=t.out_dir, stage=t.stage, net=model.get("net", {}), optim=model.get("optim", {}),
+        keys=list(t.obs_keys) if t.obs_keys else None, out_dir=t.out_dir, stage=t.stage, net=model.get("net", {}), optim=model.get("optim", {}),
         loss=model.get("loss", {}), seq_len=cfg.data.seq_len, batch_size=cfg.data.batch_size, max_steps=t.max_steps,
         max_minutes=t.max_minutes, keep_every=t.keep_every,
         num_workers=cfg.data.workers, val_fraction=cfg.data.val_fraction, val_every=t.val_every,
@@ -42,7 +42,7 @@ def _rollout(cfg, config_cls):
     if not r.pop("enabled"):
         return None
     return config_cls(task=cfg.task.name, windows=noise_windows(cfg), noise_params=OmegaConf.to_container(cfg.noise, resolve=True),
-                      image_size=cfg.profile.image_size, **r)
+                      **r)  # no image size: rollouts render the checkpoint's
 
 
 def main(argv: list[str]) -> int:

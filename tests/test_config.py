@@ -55,7 +55,7 @@ def test_an_unread_key_is_caught():
     one are unread, although `pad` and `cache_mb` are argument names in nostra.data.dataset."""
     texts = sources()
     assert unreferenced("data", ["pad", "cache_mb", "no_such_key"], texts) == ["pad", "cache_mb", "no_such_key"]
-    assert unreferenced("data", ["seq_len", "all_keys"], texts) == []  # code / an interpolation
+    assert unreferenced("data", ["seq_len", "obs_keys"], texts) == []  # code / an interpolation
 
 
 def _evaluate_cfg(monkeypatch, *overrides: str):

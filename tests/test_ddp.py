@@ -179,7 +179,7 @@ def test_diffusion_ddp_rollouts_on_rank_zero_keep_the_ema_in_sync(tmp_path):
     keys = ["agentview_image", "robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos"]
     s = Store(tmp_path / "store.zarr")
     s.ingest(write_robomimic(tmp_path / "t.hdf5", n=4, lengths=[12] * 4, image_size=40), name="t", progress=False)
-    rollout = RolloutConfig(task="Lift", every=2, episodes=2, final_episodes=2, horizon=5, image_size=40, workers=1)
+    rollout = RolloutConfig(task="Lift", every=2, episodes=2, final_episodes=2, horizon=5, workers=1)
     net = dict(embed_dim=16, encoder_hidden=[32], down_dims=[16, 32], step_embed_dim=16, horizon=8, n_obs_steps=2,
                n_action_steps=4, train_steps=10, sampler="ddim", inference_steps=3)
     out = tmp_path / "run"

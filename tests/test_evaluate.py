@@ -38,7 +38,7 @@ def ckpts(tmp_path_factory):
 def _spec(tmp_path, ckpts, **kw):
     _, _, c = ckpts
     base = dict(tasks=["Lift"], noises=["none", "mask"], out_dir=str(tmp_path / "ev"), episodes=2, horizon=12,
-                windows={"Lift": [[4, 8]]}, image_size=40, workers=1, videos_per_cell=1, progress=False,
+                windows={"Lift": [[4, 8]]}, workers=1, videos_per_cell=1, progress=False,
                 experiment="t", variants=[Variant("nostra", c["nostra"]), Variant("nostra_mli", c["nostra"], "oracle"),
                                           Variant("lstm", c["lstm"])])
     return EvalSpec(**{**base, **kw})
@@ -74,8 +74,8 @@ def test_bad_names_fail_before_any_rollout(tmp_path, ckpts):
         evaluate(_spec(tmp_path, ckpts, noises=["blur"]))
     with pytest.raises(ValueError, match="'lstm' policy cannot imagine"):
         evaluate(_spec(tmp_path, ckpts, variants=[Variant("lstm_li", c["lstm"], "oracle")]))
-    with pytest.raises(ValueError, match="renders 84x84"):
-        evaluate(_spec(tmp_path, ckpts, image_size=84))
+    with pytest.raises(ValueError, match="trained on 40x40 images, but 84x84 were asked for"):
+        evaluate(_spec(tmp_path, ckpts, image_size=84))  # the checkpoint's size (40) is rendered unless told otherwise
     assert not (tmp_path / "ev").exists()
 
 

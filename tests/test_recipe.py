@@ -124,7 +124,7 @@ def test_rollouts_during_training_log_success_and_keep_the_best(tmp_path, monkey
     s = Store(tmp_path / "store.zarr")
     s.ingest(write_robomimic(tmp_path / "t.hdf5", n=4, lengths=[12] * 4, image_size=40), name="t", progress=False)
     rollout = RolloutConfig(task="Lift", every=2, episodes=2, final_episodes=3, modes=["closed", "oracle"],
-                            noises=["none", "blind"], horizon=5, image_size=40, workers=1)
+                            noises=["none", "blind"], horizon=5, workers=1)
     out = tmp_path / "run"
     torch.manual_seed(0)
     result = train(TrainSpec(policy="nostra", store=str(s.path), collections=["t"], keys=keys, out_dir=str(out),

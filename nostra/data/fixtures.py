@@ -10,17 +10,27 @@ import numpy as np
 
 from nostra.data.episode import Episode
 from nostra.data.formats import dp_zarr, lerobot, robomimic_hdf5
+from nostra.modality import FRONT_IMAGE, sim_observations
 
-RGB_KEYS = ("agentview_image", "robot0_eye_in_hand_image")
-LOWDIM = {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_qpos": 2}
-PAPER_KEYS = (*RGB_KEYS, "agentview_depth", *LOWDIM)
+SIM = sim_observations()  # the fixtures' keys are the simulator's (any image size)
+RGB_KEYS = SIM.rgb_keys
+LOWDIM = {m.name: m.shape[0] for m in SIM.select(SIM.lowdim_keys)}
+PAPER_KEYS = SIM.names
 ENV_ARGS = {"env_name": "Lift", "type": 1, "env_kwargs": {"robots": ["Panda"], "control_freq": 20}}
 # LeRobot keeps proprioception as one concatenated vector: these slices recover our keys.
 LEROBOT_STATE_KEYS = list(LOWDIM)
-LEROBOT_KEY_MAP = {"actions": "action", "agentview_image": "observation.images.agentview",
-                   "robot0_eye_in_hand_image": "observation.images.robot0_eye_in_hand",
-                   "robot0_eef_pos": "observation.state[0:3]", "robot0_eef_quat": "observation.state[3:7]",
-                   "robot0_gripper_qpos": "observation.state[7:9]"}
+
+
+def _lerobot_key_map() -> dict:
+    out = {"actions": "action", **{k: f"observation.images.{SIM.camera_of(k)}" for k in RGB_KEYS}}
+    start = 0
+    for k, n in LOWDIM.items():
+        out[k] = f"observation.state[{start}:{start + n}]"
+        start += n
+    return out
+
+
+LEROBOT_KEY_MAP = _lerobot_key_map()
 
 
 def image(t: np.ndarray, size: int, phase: float) -> np.ndarray:
@@ -40,16 +50,17 @@ def make_episodes(n: int = 3, lengths=None, image_size: int = 16, seed: int = 0,
     rng = np.random.default_rng(seed)
     lengths = list(lengths) if lengths is not None else [int(x) for x in rng.integers(8, 20, size=n)]
     eps = []
+    modalities = SIM.select(keys)
     for i, n_steps in enumerate(lengths):
         t = np.arange(n_steps, dtype=np.float64)
         obs = {}
-        for j, k in enumerate(keys):
-            if k in RGB_KEYS:
-                obs[k] = image(t, image_size, phase=i + 0.7 * j)
-            elif k == "agentview_depth":
-                obs[k] = (1.0 + 0.2 * image(t, image_size, phase=i)[..., :1] / 255).astype(np.float32)
+        for j, m in enumerate(modalities):
+            if m.kind == "rgb":
+                obs[m.name] = image(t, image_size, phase=i + 0.7 * j)
+            elif m.kind == "depth":
+                obs[m.name] = (1.0 + 0.2 * image(t, image_size, phase=i)[..., :1] / 255).astype(np.float32)
             else:
-                obs[k] = np.cumsum(rng.normal(0, 0.05, (n_steps, LOWDIM[k])), 0).astype(np.float32)
+                obs[m.name] = np.cumsum(rng.normal(0, 0.05, (n_steps, *m.shape)), 0).astype(np.float32)
         actions = rng.uniform(-1, 1, (n_steps, action_dim)).astype(np.float32)
         extras = {"states": rng.normal(size=(n_steps, 10)), "rewards": (t == n_steps - 1).astype(np.float64),
                   "dones": (t == n_steps - 1).astype(np.int64)}
@@ -79,5 +90,5 @@ def write_lerobot(root, n: int = 3, lengths=None, image_size: int = 16, seed: in
 
 
 def write_dp_zarr(path, n: int = 3, lengths=None, image_size: int = 16, seed: int = 0,
-                  keys=(RGB_KEYS[0], *LOWDIM)) -> Path:
-    return dp_zarr.write(path, make_episodes(n, lengths, image_size, seed, keys), key_map={"agentview_image": "img"})
+                  keys=(FRONT_IMAGE, *LOWDIM)) -> Path:
+    return dp_zarr.write(path, make_episodes(n, lengths, image_size, seed, keys), key_map={FRONT_IMAGE: "img"})

@@ -21,11 +21,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from nostra.data.episode import Episode
-from nostra.modality import kind_of_key
+from nostra.modality import kind_of_key, sim_observations
 
 QUANTILES = {"q01": 0.01, "q10": 0.10, "q50": 0.50, "q90": 0.90, "q99": 0.99}
 TASK_LAYOUTS = ("lerobot", "named_index", "episodes_only", "frames_only")
-LOWDIM_OBS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos")
+LOWDIM_OBS = sim_observations().lowdim_keys
 
 
 def lerobot_frames(eps: list[Episode], state_keys: list[str]) -> tuple[list[dict], dict]:

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from nostra.modality import Modality, as_modalities
+from nostra.modality import Modality, as_modalities, to_plain
 from nostra.models.encoders import ModalityEncoder
 from nostra.models.normalizer import Normalizer
 
@@ -74,11 +74,11 @@ class PolicyModule(L.LightningModule):
     net_cls: type[PolicyNet] = PolicyNet
     default_loss: dict = {}
 
-    def __init__(self, modalities: list[dict], action_dim: int, net: dict | None = None,
+    def __init__(self, modalities: list[Modality], action_dim: int, net: dict | None = None,
                  optim: dict | None = None, loss: dict | None = None):
         super().__init__()
-        modalities = [m.to_dict() if isinstance(m, Modality) else dict(m) for m in modalities]
-        self.save_hyperparameters({"modalities": modalities, "action_dim": int(action_dim),
+        modalities = as_modalities(modalities)  # dicts too: load_from_checkpoint passes the saved hparams
+        self.save_hyperparameters({"modalities": to_plain(modalities), "action_dim": int(action_dim),
                                    "net": dict(net or {}), "optim": dict(optim or {}), "loss": dict(loss or {})})
         self.net = self.net_cls(modalities, action_dim, **(net or {}))
         self.optim_cfg = {"lr": 1e-4, **(optim or {})}

@@ -2,9 +2,10 @@
 
 ``make_env("Lift")`` builds a Panda with robosuite's BASIC composite controller (OSC_POSE arm,
 7-d delta actions: 3 position, 3 axis-angle rotation, 1 gripper) at 20 Hz. Observations are the
-six modality keys: ``agentview_image`` and ``robot0_eye_in_hand_image`` (uint8 HxWx3, right side
-up), ``agentview_depth`` (float32 HxWx1, metres) and the float32 proprioception
-``robot0_eef_pos``, ``robot0_eef_quat`` (x, y, z, w as robosuite gives it), ``robot0_gripper_qpos``.
+modalities of the observation contract, ``nostra.modality.sim_observations(image_size)`` (also
+``env.observations``): each camera's RGB image (uint8 HxWx3, right side up), the agent view's
+depth (float32 HxWx1, metres) and the float32 proprioception (the quaternion x, y, z, w as
+robosuite gives it).
 
 For run-time scene changes (noise injectors) use ``env.model`` / ``env.data`` (mujoco.MjModel /
 MjData) with the helpers of :mod:`nostra.sim.scene`: ``env.camera_id("agentview")`` for
@@ -24,12 +25,10 @@ import types
 
 import numpy as np
 
+from nostra.modality import ObservationSpec, sim_observations
 from nostra.sim import _gl, scene
-from nostra.sim.tasks import CAMERAS, CONTROL_FREQ, ROBOT, TaskSpec, get_task
+from nostra.sim.tasks import CONTROL_FREQ, ROBOT, TaskSpec, get_task
 from nostra.sim.variations import Variation, scale_range
-
-LOWDIM_KEYS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos")
-DEPTH_KEY = "agentview_depth"
 
 
 def import_robosuite():
@@ -64,9 +63,21 @@ def robosuite_kwargs(spec: TaskSpec, image_size: int = 84, depth: bool = True, r
         **spec.env_kwargs,
     )
     if render:
-        kwargs.update(camera_names=list(CAMERAS), camera_heights=int(image_size), camera_widths=int(image_size),
-                      camera_depths=[bool(depth)] + [False] * (len(CAMERAS) - 1))
+        kwargs.update(camera_kwargs(rendered_observations(image_size, depth)))
     return kwargs
+
+
+def rendered_observations(image_size: int, depth: bool = True, render: bool = True) -> ObservationSpec:
+    """The contract's modalities that an env built with these arguments returns."""
+    kinds = {"lowdim"} | ({"rgb"} if render else set()) | ({"depth"} if render and depth else set())
+    return ObservationSpec(tuple(m for m in sim_observations(image_size).modalities if m.kind in kinds))
+
+
+def camera_kwargs(spec: ObservationSpec) -> dict:
+    """robosuite's camera arguments that render ``spec``'s images (one size; depth where it has depth)."""
+    size = spec.image_size
+    return dict(camera_names=list(spec.cameras), camera_heights=size, camera_widths=size,
+                camera_depths=[cam in spec.depth_cameras for cam in spec.cameras])
 
 
 def robomimic_env_args(spec: TaskSpec, kwargs: dict) -> dict:
@@ -83,6 +94,7 @@ class SimEnv:
     def __init__(self, spec: TaskSpec, image_size: int, variation: Variation | None, seed: int, depth: bool,
                  tuned_render: bool, render: bool):
         self.spec, self.image_size, self.depth, self.render = spec, int(image_size), bool(depth), bool(render)
+        self.observations = rendered_observations(self.image_size, self.depth, self.render)  # what observe() returns
         self.tuned_render = bool(tuned_render)
         self.variation = variation or Variation()
         self.kwargs = robosuite_kwargs(spec, image_size, depth, render)
@@ -215,7 +227,7 @@ class SimEnv:
 
     # ---- internals ---------------------------------------------------------------------------
     def _convert(self, raw: dict) -> dict:
-        return contract_obs(self.raw.sim, raw, self.render, self.depth)
+        return contract_obs(self.raw.sim, raw, self.observations)
 
     def _on_new_sim(self) -> None:
         """Tune rendering and remember the pristine model of a freshly compiled sim."""
@@ -255,18 +267,19 @@ class SimEnv:
         self.raw.sim.forward()
 
 
-def contract_obs(sim, raw: dict, render: bool = True, depth: bool = True) -> dict:
-    """robosuite's observations as the six modality keys (depth in metres)."""
+def contract_obs(sim, raw: dict, spec: ObservationSpec) -> dict:
+    """robosuite's observations of the modalities of ``spec`` (robosuite names them as the contract
+    does), depth in metres."""
     obs = {}
-    if render:
-        for cam in CAMERAS:
-            obs[f"{cam}_image"] = np.ascontiguousarray(raw[f"{cam}_image"], dtype=np.uint8)
-        if depth:
+    for m in spec.modalities:
+        if m.kind == "lowdim":
+            obs[m.name] = np.asarray(raw[m.name], dtype=np.float32)
+        elif m.kind == "rgb":
+            obs[m.name] = np.ascontiguousarray(raw[m.name], dtype=np.uint8)
+        else:
             from robosuite.utils.camera_utils import get_real_depth_map
 
-            obs[DEPTH_KEY] = get_real_depth_map(sim, raw[DEPTH_KEY]).astype(np.float32)
-    for key in LOWDIM_KEYS:
-        obs[key] = np.asarray(raw[key], dtype=np.float32)
+            obs[m.name] = get_real_depth_map(sim, raw[m.name]).astype(np.float32)
     return obs
 
 

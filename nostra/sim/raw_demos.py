@@ -22,11 +22,10 @@ import numpy as np
 
 from nostra.data.episode import Episode, normalize_meta
 from nostra.data.errors import DataError
-from nostra.sim.env import CAMERAS, DEPTH_KEY, LOWDIM_KEYS, contract_obs, import_robosuite
+from nostra.sim.env import camera_kwargs, contract_obs, import_robosuite, rendered_observations
 
 log = logging.getLogger(__name__)
 FMT = "robosuite_raw"
-SIX_KEYS = (*(f"{c}_image" for c in CAMERAS), DEPTH_KEY, *LOWDIM_KEYS)
 DIVERGED = 0.01  # robosuite's playback script warns on any difference; we warn past this norm
 
 
@@ -35,10 +34,11 @@ class RawDemoSource:
 
     def __init__(self, path, image_size: int = 84, keys: list[str] | None = None, defaults: dict | None = None):
         self.path, self.size, self.defaults = Path(path), int(image_size), defaults or {}
-        self.keys = list(keys) if keys is not None else list(SIX_KEYS)
-        bad = [k for k in self.keys if k not in SIX_KEYS]
+        self.observations = rendered_observations(self.size)
+        self.keys = list(keys) if keys is not None else list(self.observations.names)
+        bad = [k for k in self.keys if k not in self.observations.names]
         if bad:
-            raise DataError(self.path, f"cannot render {bad}; valid: {list(SIX_KEYS)}", key=bad[0])
+            raise DataError(self.path, f"cannot render {bad}; valid: {list(self.observations.names)}", key=bad[0])
         with _open(self.path) as f:
             data = f["data"]
             self.env_info = _env_info(data, self.path)
@@ -95,8 +95,7 @@ class RawDemoSource:
         kw = dict(has_renderer=False, has_offscreen_renderer=render, use_camera_obs=render, ignore_done=True,
                   reward_shaping=True, control_freq=20)
         if render:
-            kw |= dict(camera_names=list(CAMERAS), camera_heights=self.size, camera_widths=self.size,
-                       camera_depths=[True] + [False] * (len(CAMERAS) - 1))
+            kw |= camera_kwargs(self.observations)
         try:
             return suite.make(**self.env_info, **kw)
         except Exception as e:
@@ -116,7 +115,7 @@ class RawDemoSource:
         for state in states:
             env.sim.set_state_from_flattened(state)
             env.sim.forward()
-            obs = contract_obs(env.sim, env._get_observations(force_update=True), render=True, depth=True)
+            obs = contract_obs(env.sim, env._get_observations(force_update=True), self.observations)
             for k in self.keys:
                 frames[k].append(obs[k])
         return {k: np.stack(v) for k, v in frames.items()}

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nostra import episode
+from nostra.modality import FRONT_IMAGE, render_size
 from nostra.noise import NoiseSchedule
 
 
@@ -26,7 +27,7 @@ class EpisodeJob:
     horizon: int
     windows: list
     noise_params: dict = field(default_factory=dict)
-    image_size: int = 84
+    image_size: int | None = None   # None: the checkpoint's (a value that disagrees with it fails the episode)
     video_path: str | None = None
     rnn_horizon: int | None = None  # the runner's state reset period (None: the checkpoint's)
 
@@ -45,7 +46,7 @@ def run_episode(env, runner, job: EpisodeJob) -> EpisodeResult:
     schedule = NoiseSchedule(job.noise, job.windows, job.noise_params)
     rng = np.random.default_rng([job.seed, 7])  # noise draws: the same for every variant
     ep = episode.run(SimSource(env, job.seed), runner, schedule, job.mode, job.horizon, rng,
-                     frame_key="agentview_image" if job.video_path else None)
+                     frame_key=FRONT_IMAGE if job.video_path else None)
     if ep.reason:
         return EpisodeResult(job, False, ep.steps, reason=ep.reason, record=ep.record())
     if ep.frames and ep.frames[0] is not None:
@@ -107,12 +108,14 @@ def init_worker(threads: int, render_threads: int | None = None) -> None:
 
 def work(job: EpisodeJob) -> EpisodeResult:
     """Run one job in this process; any error becomes a failed episode with its reason."""
+    size = None
     try:
-        env = _env(job.task, job.image_size)
         runner = _runner(job.checkpoint, job.mode, job.rnn_horizon)
+        size = render_size(runner.net.modalities, job.image_size)
+        env = _env(job.task, size)
         return run_episode(env, runner, job)
     except Exception as e:  # the evaluation goes on: this episode failed, with why
-        _ENVS.pop((job.task, job.image_size), None)  # the env may be in a broken state
+        _ENVS.pop((job.task, size), None)  # the env may be in a broken state
         reason = f"{type(e).__name__}: {e}"
         return EpisodeResult(job, False, 0, reason=reason, record={"traceback": traceback.format_exc()})
 

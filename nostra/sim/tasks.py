@@ -17,7 +17,6 @@ DEFAULT_WINDOWS = ((75, 100), (125, 150))
 
 ROBOT = "Panda"
 CONTROL_FREQ = 20
-CAMERAS = ("agentview", "robot0_eye_in_hand")
 
 
 def robosuite_success(env) -> bool:

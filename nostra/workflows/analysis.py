@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from nostra import episode
 from nostra.episode import Episode, RecordedSource, oracle_keys
+from nostra.modality import render_size
 from nostra.policies.imagination import detection_scores
 from nostra.noise import NoiseSchedule, check_noise
 
@@ -65,7 +66,7 @@ def analyse(spec: OfflineSpec) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     closed = load_runner(spec.checkpoint)
     names = closed.modality_names
-    image_size = next((m.shape[0] for m in closed.net.modalities if m.kind != "lowdim"), 84)
+    image_size = render_size(closed.net.modalities)  # the stored images are the size the policy trained on
     variants = {"closed": closed}
     if closed.can_imagine:
         variants["oracle"] = closed

@@ -17,11 +17,10 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from nostra.modality import as_modalities, render_size, sim_observations
 from nostra.noise import NoiseSchedule
 from nostra.sim.rollout import EpisodeJob, EpisodeResult, init_worker, work
 from nostra.workflows.variants import LABELS, MODES
-ENV_KEYS = ("agentview_image", "robot0_eye_in_hand_image", "agentview_depth", "robot0_eef_pos",
-            "robot0_eef_quat", "robot0_gripper_qpos")
 
 
 @dataclass
@@ -48,7 +47,7 @@ class EvalSpec:
     windows: dict = field(default_factory=dict)  # task -> [[start, end], ...] overriding the task's
     noise_params: dict = field(default_factory=dict)
     workers: int = 2
-    image_size: int = 84
+    image_size: int | None = None  # None: each checkpoint's; a value that disagrees with one is refused
     videos_per_cell: int = 1
     progress: bool = True
     experiment: str = "nostra"
@@ -91,13 +90,21 @@ def validate(spec: EvalSpec) -> None:
         runner = runner_class(meta["policy"])
         if v.mode != "closed" and not runner.can_imagine:
             raise ValueError(f"variant {v.name!r}: a '{meta['policy']}' policy cannot imagine (mode {v.mode!r})")
-        for m in meta["modalities"]:
-            if m["name"] not in ENV_KEYS:
-                raise ValueError(f"variant {v.name!r}: the policy needs {m['name']!r}, which the simulator does "
-                                 f"not provide; it provides {list(ENV_KEYS)}")
-            if m["kind"] != "lowdim" and tuple(m["shape"][:2]) != (spec.image_size, spec.image_size):
-                raise ValueError(f"variant {v.name!r}: the policy was trained on {m['name']} of shape "
-                                 f"{tuple(m['shape'])}, but evaluation renders {spec.image_size}x{spec.image_size}")
+        try:
+            check_renderable(as_modalities(meta["modalities"]), spec.image_size)
+        except ValueError as e:
+            raise ValueError(f"variant {v.name!r} ({v.checkpoint}): {e}") from None
+
+
+def check_renderable(modalities, image_size: int | None = None) -> None:
+    """The simulator can feed a policy trained on ``modalities``: it renders each of them, at the
+    checkpoint's image size (``image_size``, a config's, must agree)."""
+    size = render_size(modalities, image_size)
+    rendered = sim_observations(size).select(m.name for m in modalities)
+    for m, r in zip(modalities, rendered):
+        if m != r:
+            raise ValueError(f"the policy was trained on {m.name} as {m.kind} {m.shape}; the simulator renders "
+                             f"{r.kind} {r.shape}")
 
 
 def jobs_of(spec: EvalSpec) -> list[EpisodeJob]:

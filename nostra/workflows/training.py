@@ -18,6 +18,7 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 from nostra.workflows import ddp
 from nostra.data.dataset import SPLIT_FILE, make_loader, save_split, split_episodes
 from nostra.data.store import Store
+from nostra.modality import sim_observations
 from nostra.policies import policy_module
 from nostra.policies.checkpoint import load_net
 from nostra.workflows.tracking import Tracker, TrackingLogger
@@ -31,7 +32,7 @@ class TrainSpec:
     policy: str
     store: str
     collections: list[str]
-    keys: list[str]
+    keys: list[str] | None           # observation keys; None: every modality the simulator renders
     out_dir: str
     stage: str = "pretrain"
     net: dict = field(default_factory=dict)
@@ -60,6 +61,10 @@ class TrainSpec:
     trainer: dict = field(default_factory=dict)  # extra lightning.Trainer kwargs (devices, strategy, ...)
     dist_timeout_minutes: float = 360  # DDP process-group timeout: ranks wait this long for rank 0's rollouts
     rollout: RolloutConfig | None = None  # in-training rollouts and the best checkpoint (None: off)
+
+    def __post_init__(self):
+        if self.keys is None:
+            self.keys = list(sim_observations().names)
 
 
 def read_manifest(path: str | os.PathLike, store: Store) -> tuple[list[tuple[str, int]], str]:
@@ -111,8 +116,7 @@ def _episodes(spec: TrainSpec, store: Store):
 
 
 def _module(spec: TrainSpec, modalities, action_dim: int, stats: dict):
-    module = policy_module(spec.policy)([m.to_dict() for m in modalities], action_dim, net=spec.net,
-                                        optim=spec.optim, loss=spec.loss)
+    module = policy_module(spec.policy)(modalities, action_dim, net=spec.net, optim=spec.optim, loss=spec.loss)
     if spec.init_from:
         # checks policy and modality set before any training; keeps the pretrained normalisation
         pretrained = load_net(spec.init_from, expected_policy=spec.policy, expected_modalities=spec.keys)

@@ -1,7 +1,8 @@
 """Rollouts during training (robomimic's habit): every ``every`` steps the policy as it stands is
 saved as ``checkpoints/step=<n>.ckpt`` and rolled out in the simulator on fixed seeds that no demo
 used, through the evaluation code (``nostra.workflows.evaluation.run_jobs``: the same episode loop, worker
-processes and noise schedules as ``nostra evaluate``). Success goes to MLflow as
+processes and noise schedules as ``nostra evaluate``), at the image size the policy trains on (the
+checkpoint's modalities say it; no config repeats it). Success goes to MLflow as
 ``rollout/<task>/<noise>/<variant>`` at that step; the checkpoint with the best success on the
 first noise and variant (clean, closed loop by default) is copied to ``checkpoints/best.ckpt``.
 Early checks use few episodes, the one at the end of training ``final_episodes``, so rollouts stay
@@ -41,7 +42,6 @@ class RolloutConfig:
     horizon: int | None = None
     windows: dict = field(default_factory=dict)
     noise_params: dict = field(default_factory=dict)
-    image_size: int = 84
     workers: int = 2
 
     def __post_init__(self):
@@ -77,6 +77,14 @@ class RolloutCallback(L.Callback):
         self.started = time.time()
 
     # ---- hooks -----------------------------------------------------------------------------
+    def on_fit_start(self, trainer, pl_module):
+        from nostra.workflows.evaluation import check_renderable
+
+        try:  # before any training, not at the first check
+            check_renderable(pl_module.net.modalities)
+        except ValueError as e:
+            raise ValueError(f"train.rollout: the simulator cannot feed this policy: {e}") from None
+
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
         step = trainer.global_step
         if self.cfg.every and step % self.cfg.every == 0 and not self._done(step):
@@ -99,8 +107,8 @@ class RolloutCallback(L.Callback):
             cells = [(n, m) for n in self.cfg.noises for m in self.cfg.modes]
             windows = self.cfg.windows.get(self.task.name) or [list(w) for w in self.task.noise_windows]
             jobs = [EpisodeJob(self.task.name, n, variant_id(self.policy, m), str(path), m, self.cfg.seed + i,
-                               self.cfg.horizon or self.task.horizon, windows, dict(self.cfg.noise_params),
-                               self.cfg.image_size) for n, m in cells for i in range(episodes)]
+                               self.cfg.horizon or self.task.horizon, windows, dict(self.cfg.noise_params))
+                    for n, m in cells for i in range(episodes)]
             results = run_jobs(jobs, self.cfg.workers, progress=False)
             metrics = {}
             for n, m in cells:

@@ -3,8 +3,9 @@
 (as diffusion_policy writes it) or 3. No per-episode metadata: the contract's defaults are used.
 
 Keys map by ``{our_key: "source_key"}`` (sliceable, ``"state[0:2]"``); without a map ``action`` ->
-``actions``, ``img``/``image`` -> ``agentview_image`` and other keys keep their names. Float
-images holding whole numbers in 0..255 (as in diffusion_policy's push-T) become uint8."""
+``actions``, ``img``/``image`` -> the front image (``nostra.modality.FRONT_IMAGE``) and other keys
+keep their names. Float images holding whole numbers in 0..255 (as in diffusion_policy's push-T)
+become uint8."""
 
 from __future__ import annotations
 
@@ -18,10 +19,10 @@ from zarr.storage import ZipStore
 
 from nostra.data.episode import Episode, normalize_meta
 from nostra.data.errors import DataError
-from nostra.modality import kind_of_key
+from nostra.modality import FRONT_IMAGE, kind_of_key
 
 FMT = "dp_zarr"
-DEFAULT_MAP = {"action": "actions", "img": "agentview_image", "image": "agentview_image"}
+DEFAULT_MAP = {"action": "actions", "img": FRONT_IMAGE, "image": FRONT_IMAGE}
 _SLICE = re.compile(r"^(?P<key>.+?)(?:\[(?P<a>-?\d*):(?P<b>-?\d*)\])?$")
 
 

@@ -14,9 +14,9 @@ v2.0/v2.1: ``meta/episodes.jsonl``, ``meta/tasks.jsonl``, one parquet per episod
 
 LeRobot keys map to ours by a key map ``{our_key: "feature"}`` where a feature may be sliced,
 ``"observation.state[0:3]"``. Without one: ``action`` -> ``actions``, ``observation.images.<cam>``
--> ``<cam>_image``, ``observation.image`` -> ``agentview_image``, ``observation.<x>`` -> ``<x>``,
-a vector whose ``names`` are ``<key>.<i>`` (our export's ``observation.state``) -> those keys,
-``next.reward``/``next.done`` -> rewards/dones."""
+-> ``<cam>_image``, ``observation.image`` -> the front image (``nostra.modality.FRONT_IMAGE``),
+``observation.<x>`` -> ``<x>``, a vector whose ``names`` are ``<key>.<i>`` (our export's
+``observation.state``) -> those keys, ``next.reward``/``next.done`` -> rewards/dones."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ from PIL import Image
 
 from nostra.data.episode import Episode, normalize_meta
 from nostra.data.errors import DataError
-from nostra.modality import kind_of_key
+from nostra.modality import FRONT_IMAGE, kind_of_key
 
 FMT = "lerobot"
 BOOKKEEPING = {"timestamp", "frame_index", "episode_index", "index", "task_index"}
@@ -62,7 +62,7 @@ def default_key(feature: str, spec: dict) -> str | None:
     if spec.get("dtype") in ("video", "image"):
         name = name.removeprefix("images.")
         if name == "image":
-            return "agentview_image"
+            return FRONT_IMAGE
         return name.replace(".", "_") if name.endswith(("_image", "_depth")) else f"{name.replace('.', '_')}_image"
     return name.replace(".", "_")
 
