@@ -18,6 +18,18 @@ def small_net(policy: str) -> dict:
     return dict(SMALL_LSTM) if policy == "lstm" else dict(SMALL_NET)
 
 
+def train_spec(policy: str, net: dict | None = None, optim: dict | None = None, **kw):
+    """A TrainSpec from flat keyword arguments: TrainConfig's fields (collections, obs_keys,
+    out_dir, max_steps, ...) go to its ``train``, the others (store, seq_len, ...) to the spec."""
+    from dataclasses import fields
+
+    from nostra.configs import TrainConfig, model_config
+    from nostra.workflows.training import TrainSpec
+
+    train = {f.name: kw.pop(f.name) for f in fields(TrainConfig) if f.name in kw}
+    return TrainSpec(model=model_config(policy, net=net, optim=optim), train=TrainConfig(**train), **kw)
+
+
 def fit(module, loader, steps: int, **trainer_kwargs):
     trainer = L.Trainer(max_steps=steps, accelerator="cpu", logger=False, enable_checkpointing=False,
                         enable_progress_bar=False, enable_model_summary=False, **trainer_kwargs)

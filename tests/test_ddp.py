@@ -13,14 +13,15 @@ from pathlib import Path
 import pytest
 import torch
 
-from conftest import small_net
+from conftest import small_net, train_spec
 from nostra.data.dataset import MixtureSampler, WindowSampler, make_loader
 from nostra.data.fixtures import write_robomimic
 from nostra.data.store import Store
 from nostra.policies.checkpoint import load_net
 from nostra.workflows.tracking import search_runs
-from nostra.workflows.training import TrainSpec, train
-from nostra.workflows.training_rollouts import RolloutConfig
+from nostra.configs import RolloutConfig
+from nostra.workflows.training import train
+from nostra.workflows.training_rollouts import RolloutEnv
 
 ROOT = Path(__file__).resolve().parents[1]
 NOSTRA = str(Path(sys.executable).with_name("nostra"))
@@ -135,9 +136,9 @@ def _losses(run_dir: Path) -> dict[int, float]:
 def test_cli_ddp_matches_the_doubled_batch_tracks_once_and_resumes(store, tmp_path, capsys):
     ddp_out, single_out = tmp_path / "ddp", tmp_path / "single"
     args = [f"data.store={store.path}", "data.collections=[target]", f"data.obs_keys=[{','.join(KEYS)}]",
-            "model=lstm", "model.net.rnn_hidden=64", "model.net.decoder_hidden=[64,64]", "+model.net.embed_dim=32",
-            "+model.net.encoder_hidden=[64]", "data.seq_len=8", "data.workers=0", "train.val_every=3",
-            "train.ckpt_every=3", "train.progress=false", "train.experiment=ddp", f"train.out_dir={ddp_out}",
+            "model=lstm", "model.net.rnn_hidden=64", "model.net.decoder_hidden=[64,64]", "model.net.embed_dim=32",
+            "model.net.encoder_hidden=[64]", "data.seq_len=8", "data.workers=0", "train.val_every=3",
+            "train.progress=false", "train.experiment=ddp", f"train.out_dir={ddp_out}",
             "model.optim.lr=1e-3", "seed=0", "train.trainer={accelerator: cpu, devices: 2, strategy: ddp}"]
     _cli(*args, "data.batch_size=2", "train.max_steps=6", cwd=tmp_path)
     result = json.loads((ddp_out / "run.json").read_text())
@@ -149,9 +150,9 @@ def test_cli_ddp_matches_the_doubled_batch_tracks_once_and_resumes(store, tmp_pa
 
     # one process, batch 4 = 2 ranks x 2, same seed: the same windows in every step
     def spec(**kw):  # what the command line above asks for
-        return TrainSpec(**{**dict(policy="lstm", store=str(store.path), collections=["target"], keys=KEYS,
-                                   net={**LSTM_NET, "rnn_horizon": 8}, optim={"lr": 1e-3}, seq_len=8, num_workers=0,
-                                   val_every=3, ckpt_every=3, progress=False), **kw})
+        return train_spec(**{**dict(policy="lstm", store=str(store.path), collections=["target"], obs_keys=KEYS,
+                                    net={**LSTM_NET, "rnn_horizon": 8}, optim={"lr": 1e-3}, seq_len=8, num_workers=0,
+                                    val_every=3, progress=False), **kw})
 
     single = train(spec(out_dir=str(single_out), batch_size=4, max_steps=6, experiment="single"))
     assert "ddp" not in single
@@ -179,13 +180,14 @@ def test_diffusion_ddp_rollouts_on_rank_zero_keep_the_ema_in_sync(tmp_path):
     keys = ["agentview_image", "robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos"]
     s = Store(tmp_path / "store.zarr")
     s.ingest(write_robomimic(tmp_path / "t.hdf5", n=4, lengths=[12] * 4, image_size=40), name="t", progress=False)
-    rollout = RolloutConfig(task="Lift", every=2, episodes=2, final_episodes=2, horizon=5, workers=1)
+    rollout = RolloutConfig(every=2, episodes=2, final_episodes=2, horizon=5, workers=1)
     net = dict(embed_dim=16, encoder_hidden=[32], down_dims=[16, 32], step_embed_dim=16, horizon=8, n_obs_steps=2,
                n_action_steps=4, train_steps=10, sampler="ddim", inference_steps=3)
     out = tmp_path / "run"
-    result = train(TrainSpec(policy="diffusion", store=str(s.path), collections=["t"], keys=keys, out_dir=str(out),
-                             net=net, optim={"warmup_steps": 1}, seq_len=8, batch_size=2, max_steps=4, num_workers=0,
-                             progress=False, val_fraction=0, experiment="t", rollout=rollout, trainer=DDP))
+    result = train(train_spec("diffusion", store=str(s.path), collections=["t"], obs_keys=keys, out_dir=str(out),
+                              net=net, optim={"warmup_steps": 1}, seq_len=8, batch_size=2, max_steps=4, num_workers=0,
+                              progress=False, val_fraction=0, experiment="t", rollout=rollout, trainer=DDP,
+                              rollout_env=RolloutEnv("Lift")))
     assert result["steps"] == 4
     assert result["ddp"]["replicas_identical"] and "ema_net" in result["ddp"]["compared"]
     checks = json.loads((out / "rollouts.json").read_text())

@@ -2,17 +2,15 @@
 range, the checkpoint deploys the EMA weights, and the runner re-plans every n_action_steps."""
 
 import copy
-import inspect
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
-from omegaconf import OmegaConf
 from torch.utils.data import DataLoader
 
 from conftest import fit
+from nostra.configs import DiffusionConfig
 from nostra.data.stats import fit_stats
 from nostra.models.normalizer import Normalizer
 from nostra.policies import policy_module
@@ -149,9 +147,10 @@ def test_clear_errors():
 
 
 def test_registered_and_config_fits():
+    """The paper's settings (Table 8); the typed config's fields are DiffusionNet's arguments and
+    conf/model/diffusion.yaml extends it (tests/test_typed_config.py)."""
     assert policy_module("diffusion") is DiffusionPolicy
-    cfg = OmegaConf.load(Path(__file__).parents[1] / "conf/model/diffusion.yaml")
-    assert cfg.policy == "diffusion"
-    inspect.signature(DiffusionNet).bind(MODS, 7, **{k: 0 for k in cfg.net})  # every net key is an argument
-    assert set(cfg.optim) <= set(DiffusionPolicy.default_optim), set(cfg.optim) - set(DiffusionPolicy.default_optim)
+    cfg = DiffusionConfig()
     assert (cfg.net.horizon, cfg.net.n_obs_steps, cfg.net.n_action_steps, cfg.net.train_steps) == (16, 2, 8, 100)
+    assert (cfg.optim.lr, cfg.optim.betas, cfg.optim.weight_decay, cfg.optim.lr_scheduler) == (1e-4, [0.95, 0.999],
+                                                                                              1e-6, "cosine")

@@ -21,6 +21,8 @@ from dvc.repo import Repo
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+import pipeline._hydra  # noqa: F401  registers the typed-config schemas that conf/model and conf/train extend
+
 ROOT = Path(__file__).resolve().parents[1]
 LOCAL_PACKAGES = ("nostra", "pipeline", "retrieval")
 CFG_METHODS = {"get", "items", "keys", "values", "pop", "setdefault"}

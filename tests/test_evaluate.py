@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import small_net
+from conftest import small_net, train_spec
 from nostra.workflows.analysis import OfflineSpec, analyse
 from nostra.data.fixtures import write_robomimic
 from nostra.data.store import Store
 from nostra.workflows.evaluation import EvalSpec, Variant, evaluate, wilson
 from nostra.noise import NoiseSchedule
-from nostra.workflows.training import TrainSpec, train
+from nostra.workflows.training import train
 
 pytestmark = pytest.mark.sim
 KEYS = ["agentview_image", "robot0_eye_in_hand_image", "agentview_depth", "robot0_eef_pos", "robot0_eef_quat",
@@ -29,9 +29,9 @@ def ckpts(tmp_path_factory):
     out = {}
     for p in ("nostra", "lstm"):
         torch.manual_seed(0)
-        out[p] = train(TrainSpec(policy=p, store=str(s.path), collections=["t"], keys=KEYS, out_dir=str(root / p),
-                                 net=small_net(p), seq_len=6, batch_size=2, max_steps=2, num_workers=0,
-                                 progress=False, val_fraction=0, experiment="t"))["checkpoint"]
+        out[p] = train(train_spec(p, store=str(s.path), collections=["t"], obs_keys=KEYS, out_dir=str(root / p),
+                                  net=small_net(p), seq_len=6, batch_size=2, max_steps=2, num_workers=0,
+                                  progress=False, val_fraction=0, experiment="t"))["checkpoint"]
     return root, s, out
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import small_net
+from conftest import small_net, train_spec
 from nostra.data.fixtures import write_robomimic
 from nostra.data.store import Store
 from nostra.modality import Modality
@@ -16,8 +16,9 @@ from nostra.models.encoders import ImageAug
 from nostra.policies import LSTMNet, LSTMRunner, NostraNet, NostraRunner
 from nostra.policies.checkpoint import select_checkpoint
 from nostra.noise import NoiseSchedule
-from nostra.workflows.training import TrainSpec, train
-from nostra.workflows.training_rollouts import RolloutConfig
+from nostra.configs import RolloutConfig
+from nostra.workflows.training import train
+from nostra.workflows.training_rollouts import RolloutEnv
 
 MODS = [Modality("agentview_image", "rgb", (40, 40, 3)), Modality("robot0_eef_pos", "lowdim", (3,))]
 
@@ -123,13 +124,13 @@ def test_rollouts_during_training_log_success_and_keep_the_best(tmp_path, monkey
     keys = ["agentview_image", "robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos"]
     s = Store(tmp_path / "store.zarr")
     s.ingest(write_robomimic(tmp_path / "t.hdf5", n=4, lengths=[12] * 4, image_size=40), name="t", progress=False)
-    rollout = RolloutConfig(task="Lift", every=2, episodes=2, final_episodes=3, modes=["closed", "oracle"],
-                            noises=["none", "blind"], horizon=5, workers=1)
+    common = dict(store=str(s.path), collections=["t"], obs_keys=keys, seq_len=6, batch_size=2, num_workers=0,
+                  progress=False, val_fraction=0, experiment="t", rollout_env=RolloutEnv("Lift"),
+                  rollout=RolloutConfig(every=2, episodes=2, final_episodes=3, modes=["closed", "oracle"],
+                                        noises=["none", "blind"], horizon=5, workers=1))
     out = tmp_path / "run"
     torch.manual_seed(0)
-    result = train(TrainSpec(policy="nostra", store=str(s.path), collections=["t"], keys=keys, out_dir=str(out),
-                             net=small_net("nostra"), seq_len=6, batch_size=2, max_steps=4, num_workers=0,
-                             progress=False, val_fraction=0, experiment="t", rollout=rollout))
+    result = train(train_spec("nostra", net=small_net("nostra"), out_dir=str(out), max_steps=4, **common))
     checks = json.loads((out / "rollouts.json").read_text())
     assert [(c["step"], c["episodes"]) for c in checks] == [(2, 2), (4, 2), (4, 3)]
     assert set(checks[0]["success"]) == {"none/nostra", "none/nostra_mli", "blind/nostra", "blind/nostra_mli"}
@@ -140,9 +141,7 @@ def test_rollouts_during_training_log_success_and_keep_the_best(tmp_path, monkey
     assert steps == [2, 4, 4]
     assert select_checkpoint(out / "policy.ckpt", "best") == str(out / "checkpoints/best.ckpt")
     with pytest.raises(ValueError, match="cannot imagine"):
-        train(TrainSpec(policy="lstm", store=str(s.path), collections=["t"], keys=keys, out_dir=str(tmp_path / "l"),
-                        net=small_net("lstm"), seq_len=6, batch_size=2, max_steps=2, num_workers=0, progress=False,
-                        val_fraction=0, experiment="t", rollout=rollout))
+        train(train_spec("lstm", net=small_net("lstm"), out_dir=str(tmp_path / "l"), max_steps=2, **common))
 
 
 def test_windows_override_from_the_command_line_reaches_evaluation_and_training_rollouts():

@@ -125,7 +125,7 @@ def test_requeued_job_resumes_from_its_last_checkpoint(cluster, tmp_path):
     _store(tmp_path)
     steps = 40
     cmd = [NOSTRA, "sweep", *SLURM, *TINY, "model=lstm", "model.net.rnn_hidden=64", "model.net.decoder_hidden=[64,64]",
-           f"train.max_steps={steps}", "train.ckpt_every=4", "train.val_every=1000", "seed=0,1"]
+           f"train.max_steps={steps}", "train.val_every=4", "seed=0,1"]  # last.ckpt every 4 steps
     log = open(tmp_path / "sweep.log", "w")
     sweep_proc = subprocess.Popen(cmd, cwd=tmp_path, env=cluster, stdout=log, stderr=subprocess.STDOUT)
     try:

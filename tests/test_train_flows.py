@@ -6,7 +6,7 @@ import json
 import pytest
 import torch
 
-from conftest import small_net
+from conftest import small_net, train_spec
 from nostra.data.dataset import held_out_episodes, split_episodes
 from nostra.data.fixtures import write_robomimic
 from nostra.data.store import Store
@@ -28,10 +28,10 @@ def store(tmp_path_factory):
 
 
 def spec(store, tmp, **kw) -> TrainSpec:
-    base = dict(policy="nostra", store=str(store.path), collections=["target"], keys=KEYS, out_dir=str(tmp),
+    base = dict(policy="nostra", store=str(store.path), collections=["target"], obs_keys=KEYS, out_dir=str(tmp),
                 net=small_net("nostra"), optim={"lr": 1e-3}, seq_len=8, batch_size=4, max_steps=6,
-                num_workers=0, val_every=3, ckpt_every=3, progress=False, experiment="test")
-    return TrainSpec(**{**base, **kw})
+                num_workers=0, val_every=3, progress=False, experiment="test")
+    return train_spec(**{**base, **kw})
 
 
 @pytest.fixture(autouse=True)
@@ -84,7 +84,7 @@ def test_finetune_and_cotrain(store, tmp_path):
 def test_bad_inputs_fail_before_training(store, tmp_path):
     pre = train(spec(store, tmp_path / "pre"))["checkpoint"]
     with pytest.raises(CheckpointError, match="trained on modalities"):
-        train(spec(store, tmp_path / "f1", stage="finetune", init_from=pre, keys=KEYS[:2]))
+        train(spec(store, tmp_path / "f1", stage="finetune", init_from=pre, obs_keys=KEYS[:2]))
     with pytest.raises(CheckpointError, match="holds a 'nostra' policy, not 'lstm'"):
         train(spec(store, tmp_path / "f2", stage="finetune", init_from=pre, policy="lstm", net=small_net("lstm")))
     bad = tmp_path / "bad.json"

@@ -7,6 +7,7 @@ lowdim and actions unnormalised): the network normalises, so training and rollou
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Any, Iterable
 
 import lightning as L
@@ -14,6 +15,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from nostra.configs import model_config
 from nostra.modality import Modality, as_modalities, to_plain
 from nostra.models.encoders import ModalityEncoder
 from nostra.models.normalizer import Normalizer
@@ -32,6 +34,7 @@ class PolicyNet(nn.Module):
     def __init__(self, modalities, action_dim: int, embed_dim: int = 128, encoder_hidden=(256,),
                  image_encoder: str = "light", image_norm: str = "group", image_aug: str = "none",
                  aug_pixels: int = 8, keypoints: int = 32):
+        # the keyword arguments and defaults of nostra.configs.EncoderConfig (a test keeps them equal)
         super().__init__()
         self.modalities: list[Modality] = as_modalities(modalities)
         self.action_dim = int(action_dim)
@@ -69,20 +72,22 @@ class PolicyNet(nn.Module):
 
 class PolicyModule(L.LightningModule):
     """Lightning wrapper: teacher-forced sequence training, Adam with a constant learning rate
-    (paper Table 7), logging with the design's metric names."""
+    (paper Table 7), logging with the design's metric names. ``net``, ``optim`` and ``loss`` are
+    plain dicts, completed and checked by the policy's typed config (nostra.configs)."""
 
     net_cls: type[PolicyNet] = PolicyNet
-    default_loss: dict = {}
 
     def __init__(self, modalities: list[Modality], action_dim: int, net: dict | None = None,
                  optim: dict | None = None, loss: dict | None = None):
         super().__init__()
         modalities = as_modalities(modalities)  # dicts too: load_from_checkpoint passes the saved hparams
-        self.save_hyperparameters({"modalities": to_plain(modalities), "action_dim": int(action_dim),
-                                   "net": dict(net or {}), "optim": dict(optim or {}), "loss": dict(loss or {})})
-        self.net = self.net_cls(modalities, action_dim, **(net or {}))
-        self.optim_cfg = {"lr": 1e-4, **(optim or {})}
-        self.loss_cfg = {**self.default_loss, **(loss or {})}
+        self.config = model_config(self.net_cls.policy, net=net, optim=optim, loss=loss)
+        # the constructor's arguments (load_from_checkpoint passes them back), plain values only:
+        # checkpoints are read with torch.load(weights_only=True)
+        sections = {k: v for k, v in asdict(self.config).items() if k != "policy"}
+        self.save_hyperparameters({"modalities": to_plain(modalities), "action_dim": int(action_dim), **sections})
+        self.net = self.net_cls(modalities, action_dim, **asdict(self.config.net))
+        self.loss_cfg = asdict(self.config.loss) if hasattr(self.config, "loss") else {}
 
     @property
     def policy(self) -> str:
@@ -113,15 +118,15 @@ class PolicyModule(L.LightningModule):
             self.log(name, v, batch_size=bs, sync_dist=True)
 
     def configure_optimizers(self):
-        return torch.optim.Adam(self.parameters(), lr=self.optim_cfg["lr"])
+        return torch.optim.Adam(self.parameters(), lr=self.config.optim.lr)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
+        # the whole typed config (policy, net, optim, loss); nostra.policies.checkpoint rebuilds it
         checkpoint["nostra"] = {
             "format": CHECKPOINT_FORMAT,
-            "policy": self.policy,
             "modalities": self.hparams["modalities"],
             "action_dim": self.hparams["action_dim"],
-            "net": self.hparams["net"],
+            **asdict(self.config),
         }
 
 

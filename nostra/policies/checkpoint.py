@@ -7,11 +7,13 @@ defines CHECKPOINT_FORMAT). Imports go one way: this module imports base and the
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 from typing import Iterable
 
 import torch
 
+from nostra.configs import ConfigError, ModelConfig, model_config
 from nostra.modality import as_modalities
 from nostra.policies import POLICIES, runner_class
 from nostra.policies.base import CHECKPOINT_FORMAT
@@ -51,7 +53,7 @@ def load_net(path, expected_policy: str | None = None, expected_modalities: Iter
     if expected_modalities is not None and sorted(expected_modalities) != sorted(names):
         raise CheckpointError(f"{path} was trained on modalities {sorted(names)}, "
                               f"but {sorted(expected_modalities)} were given")
-    net = POLICIES[policy][0].net_cls(modalities, meta["action_dim"], **meta["net"])
+    net = POLICIES[policy][0].net_cls(modalities, meta["action_dim"], **asdict(stored_config(path, meta).net))
     # a policy that trains with an EMA copy (diffusion's AveragedModel ``ema_net``) deploys the averaged weights
     prefix = "ema_net.module." if any(k.startswith("ema_net.module.") for k in state) else "net."
     weights = {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
@@ -60,6 +62,17 @@ def load_net(path, expected_policy: str | None = None, expected_modalities: Iter
     except RuntimeError as e:
         raise CheckpointError(f"{path}: weights do not fit a '{policy}' network with its stored config: {e}") from e
     return net.eval()
+
+
+def stored_config(path, meta: dict) -> ModelConfig:
+    """The typed model config a checkpoint's metadata holds. One written before the whole config was
+    stored has only ``net`` (the defaults complete it as they did in training); its optim and
+    loss show the defaults, not necessarily what it was trained with."""
+    try:
+        return model_config(meta["policy"], **{k: meta.get(k) for k in ("net", "optim", "loss")})
+    except ConfigError as e:
+        raise CheckpointError(f"{path}: its stored config does not fit this code's '{meta['policy']}' "
+                              f"policy: {e}") from e
 
 
 def load_runner(path, modalities: Iterable[str] | None = None, expected_policy: str | None = None,

@@ -31,6 +31,7 @@ class DiffusionNet(PolicyNet):
                  down_dims=(256, 512, 1024), kernel_size: int = 5, n_groups: int = 8, step_embed_dim: int = 256,
                  train_steps: int = 100, sampler: str = "ddpm", inference_steps: int | None = None,
                  **encoder_kwargs):
+        # the keyword arguments and defaults of nostra.configs.DiffusionNetConfig (a test keeps them equal)
         super().__init__(modalities, action_dim, **encoder_kwargs)
         if n_obs_steps < 1 or n_action_steps < 1 or n_obs_steps - 1 + n_action_steps > horizon:
             raise ValueError(f"need n_obs_steps >= 1, n_action_steps >= 1 and n_obs_steps - 1 + n_action_steps "
@@ -120,15 +121,11 @@ class DiffusionPolicy(PolicyModule):
     and deployed (checkpoint.load_net picks them)."""
 
     net_cls = DiffusionNet
-    default_optim = {"lr": 1e-4, "betas": (0.95, 0.999), "eps": 1e-8, "weight_decay": 1e-6,
-                     "lr_scheduler": "cosine", "warmup_steps": 500, "total_steps": None,
-                     "ema_power": 0.75, "ema_max_decay": 0.9999}
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self.optim_cfg = {**self.default_optim, **self.optim_cfg}
-        self.ema_net = AveragedModel(self.net, multi_avg_fn=ema_multi_avg(self.optim_cfg["ema_power"],
-                                                                          self.optim_cfg["ema_max_decay"]))
+        optim = self.config.optim  # nostra.configs.DiffusionOptimConfig
+        self.ema_net = AveragedModel(self.net, multi_avg_fn=ema_multi_avg(optim.ema_power, optim.ema_max_decay))
         self.ema_net.requires_grad_(False)
 
     def set_normalization(self, stats: dict) -> None:
@@ -150,14 +147,14 @@ class DiffusionPolicy(PolicyModule):
         self.log(f"{prefix}/mse", out["mse"], batch_size=batch["actions"].shape[0], sync_dist=True)
 
     def configure_optimizers(self):
-        cfg = self.optim_cfg
-        opt = torch.optim.AdamW(self.net.parameters(), lr=cfg["lr"], betas=tuple(cfg["betas"]), eps=cfg["eps"],
-                                weight_decay=cfg["weight_decay"])
-        total = cfg["total_steps"] or self.trainer.estimated_stepping_batches
+        cfg = self.config.optim
+        opt = torch.optim.AdamW(self.net.parameters(), lr=cfg.lr, betas=tuple(cfg.betas), eps=cfg.eps,
+                                weight_decay=cfg.weight_decay)
+        total = cfg.total_steps or self.trainer.estimated_stepping_batches
         if not math.isfinite(total):
             raise ValueError("the cosine learning-rate schedule needs a finite length: set the trainer's max_steps "
                              "or max_epochs, or optim.total_steps")
-        sched = get_scheduler(cfg["lr_scheduler"], opt, num_warmup_steps=int(cfg["warmup_steps"]),
+        sched = get_scheduler(cfg.lr_scheduler, opt, num_warmup_steps=int(cfg.warmup_steps),
                               num_training_steps=int(total))
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 

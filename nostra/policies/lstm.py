@@ -23,6 +23,7 @@ class LSTMNet(PolicyNet):
     def __init__(self, modalities, action_dim: int, rnn_hidden: int = 400, rnn_layers: int = 2,
                  decoder_hidden=(400, 400), head: str = "gaussian", action_std: float = 1.0, gmm_modes: int = 5,
                  rnn_horizon: int = 0, **encoder_kwargs):
+        # the keyword arguments and defaults of nostra.configs.LSTMNetConfig (a test keeps them equal)
         super().__init__(modalities, action_dim, **encoder_kwargs)
         if rnn_horizon < 0:
             raise ValueError(f"rnn_horizon must be >= 0 (0: never reset), got {rnn_horizon}")

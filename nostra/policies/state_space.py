@@ -27,6 +27,7 @@ class StateSpaceNet(PolicyNet):
                  min_std: float = 0.1, fusion_embed: int = 256, fusion_heads: int = 2, fusion_blocks: int = 1,
                  fusion_out: int = 256, decoder_hidden=(400, 400), head: str = "gaussian", action_std: float = 1.0,
                  gmm_modes: int = 5, rnn_horizon: int = 0, **encoder_kwargs):
+        # the keyword arguments and defaults of nostra.configs.StateSpaceNetConfig (a test keeps them equal)
         super().__init__(modalities, action_dim, **encoder_kwargs)
         if rnn_horizon < 0:
             raise ValueError(f"rnn_horizon must be >= 0 (0: carry the state all episode), got {rnn_horizon}")
@@ -133,4 +134,4 @@ class StateSpaceRunner(Runner):
 
 
 class StateSpaceModule(PolicyModule):
-    default_loss = {"beta": 1e-4, "gamma": 0.1}
+    """Trains with the KL-balanced loss; beta and gamma: the config's ``loss`` (nostra.configs.KLLossConfig)."""

@@ -14,7 +14,7 @@ the same ``train()`` call, whatever started rank 0. Where processes are created 
 ``srun`` with one task per device, ``torchrun``), nothing is launched and Lightning's cluster
 environment gives the ranks.
 
-The process group gets a long timeout (``TrainSpec.dist_timeout_minutes``): while rank 0 runs
+The process group gets a long timeout (``train.dist_timeout_minutes``): while rank 0 runs
 the in-training rollouts (minutes), the other ranks wait in a barrier, and the default 30 minutes
 would kill them on a long check.
 """
@@ -85,7 +85,7 @@ class NostraDDP(DDPStrategy):
 
 
 def trainer_kwargs(kwargs: dict, spec: dict, spec_file: Path, timeout_minutes: float) -> dict:
-    """``TrainSpec.trainer`` for lightning.Trainer: a DDP strategy named by a string ('ddp',
+    """``train.trainer`` for lightning.Trainer: a DDP strategy named by a string ('ddp',
     'ddp_find_unused_parameters_true', 'ddp_spawn', ...) becomes a DDPStrategy with the long
     process-group timeout ('ddp' and its popen variants with nostra's launcher); Lightning must
     not swap our rank-aware samplers for its DistributedSampler (use_distributed_sampler=False)."""
@@ -172,13 +172,9 @@ class ReplicaCheck(L.Callback):
 def main(argv: list[str] | None = None) -> None:
     """A rank started by _SpecLauncher: ``python -m nostra.workflows.ddp <spec.json>``."""
     from nostra.workflows.training import TrainSpec, train
-    from nostra.workflows.training_rollouts import RolloutConfig
 
     argv = sys.argv[1:] if argv is None else argv
-    spec = json.loads(Path(argv[0]).read_text())
-    if spec.get("rollout") is not None:
-        spec["rollout"] = RolloutConfig(**spec["rollout"])
-    train(TrainSpec(**spec))
+    train(TrainSpec.from_dict(json.loads(Path(argv[0]).read_text())))
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ from pathlib import Path
 import lightning as L
 from lightning.pytorch.callbacks import ModelCheckpoint
 
+from nostra.configs import ModelConfig, TrainConfig, from_dict, model_config
 from nostra.workflows import ddp
 from nostra.data.dataset import SPLIT_FILE, make_loader, save_split, split_episodes
 from nostra.data.store import Store
@@ -22,49 +23,36 @@ from nostra.modality import sim_observations
 from nostra.policies import policy_module
 from nostra.policies.checkpoint import load_net
 from nostra.workflows.tracking import Tracker, TrackingLogger
-from nostra.workflows.training_rollouts import RolloutCallback, RolloutConfig
+from nostra.workflows.training_rollouts import RolloutCallback, RolloutEnv
 
 STAGES = ("pretrain", "finetune", "cotrain")
 
 
 @dataclass
 class TrainSpec:
-    policy: str
+    """One training run: the typed model and train configs (nostra.configs: conf/model, conf/train)
+    and what the data and task configs add."""
+    model: ModelConfig               # policy, net, optim (, loss)
+    train: TrainConfig               # collections, steps, stage, checkpoints, tracking, trainer, rollouts
     store: str
-    collections: list[str]
-    keys: list[str] | None           # observation keys; None: every modality the simulator renders
-    out_dir: str
-    stage: str = "pretrain"
-    net: dict = field(default_factory=dict)
-    optim: dict = field(default_factory=dict)
-    loss: dict = field(default_factory=dict)
     seq_len: int = 16
     batch_size: int = 32
-    max_steps: int = 1000
-    max_minutes: float | None = None  # wall-clock budget of the whole fit (Lightning's max_time); None: steps only
-    keep_every: int | None = None    # keep checkpoints/step=<n>.ckpt every this many steps (None: last only)
     num_workers: int = 2
     val_fraction: float = 0.1
-    val_every: int = 500
-    ckpt_every: int = 500
-    init_from: str | None = None     # finetune: the pretrained checkpoint
-    num_demos: int | None = None     # finetune / cotrain: how many target demos to use
-    manifest: str | None = None      # cotrain: retrieval manifest (JSON)
-    cotrain_ratio: float = 0.5       # cotrain: share of each batch from the target demos
     seed: int = 0
-    resume: bool = True
-    progress: bool = True
-    experiment: str = "nostra"
-    run_name: str | None = None
     params: dict = field(default_factory=dict)  # extra MLflow params (task, profile, ...)
-    parent_run_id: str | None = None
-    trainer: dict = field(default_factory=dict)  # extra lightning.Trainer kwargs (devices, strategy, ...)
-    dist_timeout_minutes: float = 360  # DDP process-group timeout: ranks wait this long for rank 0's rollouts
-    rollout: RolloutConfig | None = None  # in-training rollouts and the best checkpoint (None: off)
+    rollout_env: RolloutEnv | None = None        # where train.rollout runs; needed when its every > 0
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainSpec":
+        """The inverse of dataclasses.asdict (DDP ranks read the spec from JSON)."""
+        env = d.get("rollout_env")
+        return cls(**{**d, "model": model_config(**d["model"]), "train": from_dict(TrainConfig, d["train"]),
+                      "rollout_env": env and RolloutEnv(**env)})
 
     def __post_init__(self):
-        if self.keys is None:
-            self.keys = list(sim_observations().names)
+        if self.train.obs_keys is None:  # every modality the simulator renders
+            self.train.obs_keys = list(sim_observations().names)
 
 
 def read_manifest(path: str | os.PathLike, store: Store) -> tuple[list[tuple[str, int]], str]:
@@ -91,43 +79,58 @@ def read_manifest(path: str | os.PathLike, store: Store) -> tuple[list[tuple[str
 
 def _episodes(spec: TrainSpec, store: Store):
     """(train pairs, val pairs, mixture weights or None, manifest hash)."""
-    train, val = split_episodes(store, spec.collections, spec.val_fraction, spec.seed)
-    if spec.num_demos is not None:
-        if spec.num_demos < 1 or spec.num_demos > len(train):
-            raise ValueError(f"num_demos={spec.num_demos}, but {spec.collections} have {len(train)} training demos")
-        train = sorted(train)[: spec.num_demos]
-    if spec.stage != "cotrain":
+    t = spec.train
+    train, val = split_episodes(store, t.collections, spec.val_fraction, spec.seed)
+    if t.num_demos is not None:
+        if t.num_demos < 1 or t.num_demos > len(train):
+            raise ValueError(f"num_demos={t.num_demos}, but {t.collections} have {len(train)} training demos")
+        train = sorted(train)[: t.num_demos]
+    if t.stage != "cotrain":
         return train, val, None, None
-    if not spec.manifest:
+    if not t.manifest:
         raise ValueError("stage=cotrain needs a retrieval manifest (train.manifest=<path>)")
-    extra, digest = read_manifest(spec.manifest, store)
-    overlap = sorted({c for c, _ in extra} & set(spec.collections))
+    extra, digest = read_manifest(t.manifest, store)
+    overlap = sorted({c for c, _ in extra} & set(t.collections))
     if overlap:
-        raise ValueError(f"manifest {spec.manifest} draws from the target collections {overlap}; "
+        raise ValueError(f"manifest {t.manifest} draws from the target collections {overlap}; "
                          "co-training mixes target and retrieved collections, so they must differ")
-    if not 0 < spec.cotrain_ratio < 1:
-        raise ValueError(f"cotrain_ratio must be in (0, 1), got {spec.cotrain_ratio}")
+    if not 0 < t.cotrain_ratio < 1:
+        raise ValueError(f"cotrain_ratio must be in (0, 1), got {t.cotrain_ratio}")
     counts = {}
     for c, _ in extra:
         counts[c] = counts.get(c, 0) + 1
-    weights = {c: spec.cotrain_ratio / len(spec.collections) for c in spec.collections}
-    weights.update({c: (1 - spec.cotrain_ratio) * n / len(extra) for c, n in counts.items()})
+    weights = {c: t.cotrain_ratio / len(t.collections) for c in t.collections}
+    weights.update({c: (1 - t.cotrain_ratio) * n / len(extra) for c, n in counts.items()})
     return train + extra, val, weights, digest
 
 
 def _module(spec: TrainSpec, modalities, action_dim: int, stats: dict):
-    module = policy_module(spec.policy)(modalities, action_dim, net=spec.net, optim=spec.optim, loss=spec.loss)
-    if spec.init_from:
+    model, init_from = asdict(spec.model), spec.train.init_from
+    policy = model.pop("policy")
+    module = policy_module(policy)(modalities, action_dim, **model)
+    if init_from:
         # checks policy and modality set before any training; keeps the pretrained normalisation
-        pretrained = load_net(spec.init_from, expected_policy=spec.policy, expected_modalities=spec.keys)
+        pretrained = load_net(init_from, expected_policy=policy, expected_modalities=spec.train.obs_keys)
         try:
             module.net.load_state_dict(pretrained.state_dict())
         except RuntimeError as e:
-            raise ValueError(f"{spec.init_from}: its network does not match this config's {spec.policy} "
-                             f"network (net={spec.net}): {e}") from e
+            raise ValueError(f"{init_from}: its network does not match this config's {policy} "
+                             f"network (net={model['net']}): {e}") from e
     else:
         module.set_normalization(stats)
     return module
+
+
+def _rollouts(spec: TrainSpec, out: Path):
+    """The in-training rollouts' callback (train.rollout.every > 0), else None."""
+    from nostra.policies import runner_class
+
+    if spec.train.rollout.every <= 0:
+        return None
+    if spec.rollout_env is None:
+        raise ValueError("train.rollout.every > 0: the rollouts need TrainSpec.rollout_env (the task and its noise)")
+    policy = spec.model.policy
+    return RolloutCallback(spec.train.rollout, spec.rollout_env, policy, out, runner_class(policy).can_imagine)
 
 
 class _ResumedStream(L.Callback):
@@ -145,61 +148,58 @@ class _ResumedStream(L.Callback):
 
 def train(spec: TrainSpec) -> dict:
     """Run one training flow; returns paths and the tracking summary."""
-    if spec.stage not in STAGES:
-        raise ValueError(f"unknown training stage {spec.stage!r}; valid: {', '.join(STAGES)}")
-    if spec.stage == "finetune" and not spec.init_from:
+    t, policy = spec.train, spec.model.policy
+    if t.stage not in STAGES:
+        raise ValueError(f"unknown training stage {t.stage!r}; valid: {', '.join(STAGES)}")
+    if t.stage == "finetune" and not t.init_from:
         raise ValueError("stage=finetune needs a pretrained checkpoint (train.init_from=<path>)")
     start = time.time()
+    out = Path(t.out_dir)
+    rollouts = _rollouts(spec, out)
     L.seed_everything(spec.seed, workers=True, verbose=False)
     store = Store(spec.store)
     train_eps, val_eps, weights, manifest_hash = _episodes(spec, store)
-    collections = weights if weights is not None else spec.collections
-    loader = make_loader(store, collections, spec.keys, spec.seq_len, spec.batch_size, spec.num_workers,
-                         episodes=train_eps, num_samples=spec.max_steps * spec.batch_size, seed=spec.seed)
+    collections = weights if weights is not None else t.collections
+    loader = make_loader(store, collections, t.obs_keys, spec.seq_len, spec.batch_size, spec.num_workers,
+                         episodes=train_eps, num_samples=t.max_steps * spec.batch_size, seed=spec.seed)
     ds = loader.dataset
     module = _module(spec, ds.modalities(), ds.action_dim, ds.stats())
     val_loader = None
     if val_eps:
-        val_loader = make_loader(store, sorted({c for c, _ in val_eps}), spec.keys, spec.seq_len, spec.batch_size,
+        val_loader = make_loader(store, sorted({c for c, _ in val_eps}), t.obs_keys, spec.seq_len, spec.batch_size,
                                  0, episodes=val_eps, shuffle=False)
 
-    out = Path(spec.out_dir)
-    callbacks = [ModelCheckpoint(dirpath=out / "checkpoints", save_last=True, every_n_train_steps=spec.ckpt_every,
+    callbacks = [ModelCheckpoint(dirpath=out / "checkpoints", save_last=True, every_n_train_steps=t.val_every,
                                  save_top_k=0)]
-    if spec.keep_every:
+    if t.keep_every:
         callbacks.append(ModelCheckpoint(dirpath=out / "checkpoints", filename="step={step}", auto_insert_metric_name=False,
-                                         every_n_train_steps=spec.keep_every, save_top_k=-1))
-    rollouts = None
-    if spec.rollout is not None and (spec.rollout.every or spec.rollout.final_episodes):
-        from nostra.policies import runner_class
-
-        rollouts = RolloutCallback(spec.rollout, spec.policy, out, runner_class(spec.policy).can_imagine)
+                                         every_n_train_steps=t.keep_every, save_top_k=-1))
+    if rollouts is not None:
         callbacks.append(rollouts)
     callbacks.append(_ResumedStream(loader.sampler))
     replicas = ddp.ReplicaCheck()  # under DDP: ranks draw different windows and end with the same weights
     callbacks.append(replicas)
-    max_time = {"minutes": spec.max_minutes} if spec.max_minutes else None
+    max_time = {"minutes": t.max_minutes} if t.max_minutes else None
     logger = TrackingLogger()
-    kwargs = dict(max_steps=spec.max_steps, max_time=max_time, logger=logger, callbacks=callbacks,
-                  enable_progress_bar=spec.progress, enable_model_summary=False,
-                  log_every_n_steps=max(1, min(10, spec.max_steps // 3)),
-                  val_check_interval=min(spec.val_every, spec.max_steps) if val_loader else None,
+    kwargs = dict(max_steps=t.max_steps, max_time=max_time, logger=logger, callbacks=callbacks,
+                  enable_progress_bar=t.progress, enable_model_summary=False,
+                  log_every_n_steps=max(1, min(10, t.max_steps // 3)),
+                  val_check_interval=min(t.val_every, t.max_steps) if val_loader else None,
                   limit_val_batches=4, num_sanity_val_steps=0)
-    trainer = ddp.make_trainer({**kwargs, **spec.trainer}, asdict(spec), out / "ddp_spec.json",
-                               spec.dist_timeout_minutes)
+    trainer = ddp.make_trainer({**kwargs, **t.trainer}, asdict(spec), out / "ddp_spec.json", t.dist_timeout_minutes)
     # built on every rank (a distributed run starts its other ranks in trainer.fit); only global rank 0 tracks
     zero = trainer.is_global_zero
     if zero:  # evaluation's offline analysis reads the held-out episodes from here
         out.mkdir(parents=True, exist_ok=True)
         save_split(out / SPLIT_FILE, train_eps, val_eps)
-    params = {"model": spec.policy, "stage": spec.stage, "seed": spec.seed, "collections": ",".join(spec.collections),
-              "num_demos": spec.num_demos, "manifest_hash": manifest_hash, "max_steps": spec.max_steps,
-              "init_from": spec.init_from, "world_size": trainer.world_size, **spec.params}
-    tracker = Tracker(spec.experiment, spec.run_name or f"{spec.stage}-{spec.policy}", out, params,
-                      tags={"stage": spec.stage}, parent_run_id=spec.parent_run_id, rank=trainer.global_rank)
+    params = {"model": policy, "stage": t.stage, "seed": spec.seed, "collections": ",".join(t.collections),
+              "num_demos": t.num_demos, "manifest_hash": manifest_hash, "max_steps": t.max_steps,
+              "init_from": t.init_from, "world_size": trainer.world_size, **spec.params}
+    tracker = Tracker(t.experiment, t.run_name or f"{t.stage}-{policy}", out, params,
+                      tags={"stage": t.stage}, parent_run_id=t.parent_run_id, rank=trainer.global_rank)
     logger.tracker = tracker
     last = out / "checkpoints" / "last.ckpt"
-    resume = str(last) if spec.resume and last.is_file() else None
+    resume = str(last) if t.resume and last.is_file() else None
     if resume and zero:
         print(f"resuming from {resume}")
     status, final = "FAILED", out / "policy.ckpt"

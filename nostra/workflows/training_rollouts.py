@@ -10,7 +10,7 @@ a small share of the wall time; ``rollouts.json`` lists every check with its cos
 
 Under DDP every rank saves the checkpoint (a collective call; rank 0 writes it), rank 0 alone
 runs the rollouts, logs and writes, and the other ranks wait in a barrier, for at most the
-process group's timeout (``TrainSpec.dist_timeout_minutes``, 6 h by default; Lightning's 30 min
+process group's timeout (``train.dist_timeout_minutes``, 6 h by default; Lightning's 30 min
 would be too short for a long final check), then take rank 0's row of results.
 """
 
@@ -24,6 +24,7 @@ from pathlib import Path
 
 import lightning as L
 
+from nostra.configs import RolloutConfig
 from nostra.workflows.variants import MODES
 
 # variant id suffix of each imagination mode, as in the evaluation tables (nostra_mli, rssm_li, ...)
@@ -31,31 +32,28 @@ SUFFIX = {"closed": "", "oracle": "_mli", "adaptive": "_adamli"}
 
 
 @dataclass
-class RolloutConfig:
+class RolloutEnv:
+    """Where the rollouts run, as `nostra evaluate` runs them: the task, the noise windows per task
+    (the task's own when absent) and the noise parameters; images render at the checkpoint's size."""
     task: str
-    every: int = 0                 # steps between checks; 0 turns in-training rollouts off
-    episodes: int = 10             # per cell at each check during training
-    final_episodes: int = 50       # per cell at the end of training
-    noises: list = field(default_factory=lambda: ["none"])
-    modes: list = field(default_factory=lambda: ["closed"])  # closed | oracle (MLI) | adaptive (AdaMLI)
-    seed: int = 1000               # episode i has seed seed + i at every check: demos use seeds from 0
-    horizon: int | None = None
     windows: dict = field(default_factory=dict)
     noise_params: dict = field(default_factory=dict)
-    workers: int = 2
 
-    def __post_init__(self):
-        from nostra.noise import check_noise
-        from nostra.sim.tasks import get_task
 
-        get_task(self.task)
-        for n in self.noises:
-            check_noise(n)
-        bad = [m for m in self.modes if m not in MODES]
-        if bad:
-            raise ValueError(f"train.rollout.modes: unknown {bad}; valid: {', '.join(MODES)}")
-        if self.every < 0 or self.episodes < 1 or self.final_episodes < 0:
-            raise ValueError(f"train.rollout needs every >= 0, episodes >= 1, final_episodes >= 0; got {asdict(self)}")
+def _check(cfg: RolloutConfig, env: RolloutEnv, policy: str, can_imagine: bool) -> None:
+    from nostra.noise import check_noise
+    from nostra.sim.tasks import get_task
+
+    get_task(env.task)
+    for n in cfg.noises:
+        check_noise(n)
+    bad = [m for m in cfg.modes if m not in MODES]
+    if bad:
+        raise ValueError(f"train.rollout.modes: unknown {bad}; valid: {', '.join(MODES)}")
+    if not can_imagine and set(cfg.modes) - {"closed"}:
+        raise ValueError(f"train.rollout.modes={cfg.modes}: a '{policy}' policy cannot imagine; use [closed]")
+    if cfg.every < 0 or cfg.episodes < 1 or cfg.final_episodes < 0:
+        raise ValueError(f"train.rollout needs every >= 0, episodes >= 1, final_episodes >= 0; got {asdict(cfg)}")
 
 
 def variant_id(policy: str, mode: str) -> str:
@@ -64,13 +62,12 @@ def variant_id(policy: str, mode: str) -> str:
 
 
 class RolloutCallback(L.Callback):
-    def __init__(self, cfg: RolloutConfig, policy: str, out_dir: str | Path, can_imagine: bool):
+    def __init__(self, cfg: RolloutConfig, env: RolloutEnv, policy: str, out_dir: str | Path, can_imagine: bool):
         from nostra.sim.tasks import get_task
 
-        if not can_imagine and set(cfg.modes) - {"closed"}:
-            raise ValueError(f"train.rollout.modes={cfg.modes}: a '{policy}' policy cannot imagine; use [closed]")
-        self.cfg, self.policy, self.out = cfg, policy, Path(out_dir)
-        self.task = get_task(cfg.task)
+        _check(cfg, env, policy, can_imagine)
+        self.cfg, self.env, self.policy, self.out = cfg, env, policy, Path(out_dir)
+        self.task = get_task(env.task)
         self.log_path = self.out / "rollouts.json"
         self.history: list[dict] = json.loads(self.log_path.read_text()) if self.log_path.is_file() else []
         self.best = max((h["score"] for h in self.history), default=-1.0)
@@ -105,9 +102,9 @@ class RolloutCallback(L.Callback):
         row = {"step": step, "episodes": episodes, "checkpoint": path.name, "success": {}}
         if trainer.is_global_zero:
             cells = [(n, m) for n in self.cfg.noises for m in self.cfg.modes]
-            windows = self.cfg.windows.get(self.task.name) or [list(w) for w in self.task.noise_windows]
+            windows = self.env.windows.get(self.task.name) or [list(w) for w in self.task.noise_windows]
             jobs = [EpisodeJob(self.task.name, n, variant_id(self.policy, m), str(path), m, self.cfg.seed + i,
-                               self.cfg.horizon or self.task.horizon, windows, dict(self.cfg.noise_params))
+                               self.cfg.horizon or self.task.horizon, windows, dict(self.env.noise_params))
                     for n, m in cells for i in range(episodes)]
             results = run_jobs(jobs, self.cfg.workers, progress=False)
             metrics = {}
@@ -131,7 +128,7 @@ class RolloutCallback(L.Callback):
             print(f"rollouts at step {step}: " + ", ".join(f"{k} {v['rate']:.0%}" for k, v in row["success"].items())
                   + f" ({episodes} episodes, {row['seconds']:.0f} s)" + (" best" if row.get("best") else ""))
         # under DDP the other ranks wait here for rank 0's rollouts (the process group's timeout is
-        # TrainSpec.dist_timeout_minutes), then take its row: every rank keeps the same history, so
+        # train.dist_timeout_minutes), then take its row: every rank keeps the same history, so
         # all of them make the same decisions in _done() and enter the collective calls together
         trainer.strategy.barrier("rollouts")
         row = trainer.strategy.broadcast(row, src=0)
