@@ -295,7 +295,7 @@ def test_editing_nostra_data_changes_a_dep_hash_of_every_train_and_evaluate_stag
     after = dep_hashes()
     changed = {addr for addr in before if before[addr] != after[addr]}
     cmds = {addr: cmd for addr, (cmd, _) in _stages(tmp_path).items()}
-    expected = {addr for addr, cmd in cmds.items() if cmd.split()[1] in ("train", "evaluate", "ingest", "index",
+    expected = {addr for addr, cmd in cmds.items() if cmd.split()[1] in ("generate", "train", "evaluate", "ingest", "index",
                                                                          "retrieve")}
     assert {a for a in cmds if a.startswith(("pretrain", "finetune", "cotrain", "evaluate"))} <= expected
     assert changed == expected, (sorted(expected - changed), sorted(changed - expected))
