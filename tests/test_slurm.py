@@ -68,6 +68,17 @@ def _slurm_jobs(env, array_id: str) -> dict[str, dict]:
     return jobs
 
 
+def _settled_jobs(env, array_id: str, timeout: float = 60) -> dict[str, dict]:
+    """_slurm_jobs once no task is still running: a job writes its result (which ends the sweep)
+    before its process exits, so the controller may mark it COMPLETED a moment after the sweep ends."""
+    deadline = time.time() + timeout
+    while True:
+        jobs = _slurm_jobs(env, array_id)
+        if time.time() > deadline or not {j["JobState"] for j in jobs.values()} & {"RUNNING", "COMPLETING"}:
+            return jobs
+        time.sleep(0.5)
+
+
 def _children(tmp_path):
     mlflow.set_tracking_uri(f"sqlite:///{tmp_path / 'mlflow.db'}")
     runs = mlflow.search_runs(search_all_experiments=True)
@@ -98,7 +109,7 @@ def test_sweep_runs_as_a_slurm_job_array(cluster, tmp_path):
     assert folders == [f"{array}_0", f"{array}_1"], folders
 
     # the controller ran both tasks to completion on this node, in partition cpu
-    records = _slurm_jobs(cluster, array)
+    records = _settled_jobs(cluster, array)
     assert sorted(records) == folders
     for rec in records.values():
         assert (rec["JobState"], rec["ExitCode"], rec["Partition"]) == ("COMPLETED", "0:0", "cpu"), rec
@@ -156,7 +167,7 @@ def test_requeued_job_resumes_from_its_last_checkpoint(cluster, tmp_path):
     assert sweep_proc.returncode == 0, (tmp_path / "sweep.log").read_text()[-3000:]
 
     array = task0.split("_")[0]
-    records = _slurm_jobs(cluster, array)
+    records = _settled_jobs(cluster, array)
     assert records[task0]["Restarts"] == "1" and records[f"{array}_1"]["Restarts"] == "0", records
     assert {r["JobState"] for r in records.values()} == {"COMPLETED"}, records
     out = (sweep / ".submitit" / task0 / f"{task0}_0_log.out").read_text()
