@@ -72,3 +72,16 @@ def test_clean_windows_imagines_without_corrupting():
     obs = {"agentview_image": np.full((4, 4, 3), 7, np.uint8), "robot0_eef_pos": np.ones(3)}
     assert s.active(5) and not s.active(10) and "agentview_image" in s.keys
     assert all(np.array_equal(s.corrupt(obs, 6)[k], obs[k]) for k in obs)
+
+
+def test_cells_not_run_yet_are_not_measured_not_failed(tmp_path):
+    """A run stopped before its mask cells: the verdicts say so instead of "no" / "not shown"."""
+    for variant, ok in (("lstm", True), ("nostra", True)):
+        _write(tmp_path, 0, "best", "none", variant, [ok] * 10)
+    _write(tmp_path, 0, "best", "blind", "lstm", [False] * 10)
+    _write(tmp_path, 0, "best", "blind", "nostra_mli", [False] * 10)
+    df = load_records(tmp_path)
+    lines = "\n".join(verdicts(success_table(df), paired_table(df), "best"))
+    assert "| mask hurts closed-loop BC-NOSTRA by >= 10% (100% -> –) | not measured |" in lines
+    assert "| blind control <= 20% (BC-LSTM 0%, MLI 0%) | yes |" in lines
+    assert lines.count("| not measured |") == 4 and "shown" not in lines

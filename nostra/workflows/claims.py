@@ -112,30 +112,40 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
     s = success[(success.checkpoint == checkpoint) & (success.seed == seed)].set_index(["variant", "noise"])
     rate = lambda v, n: s.rate.get((v, n), np.nan)  # noqa: E731
     pct = lambda x: "–" if np.isnan(x) else f"{100 * x:.0f}%"  # noqa: E731
+    # each row: (text, holds, the numbers it needs); a row missing a number is "not measured"
     pre = [(f"closed-loop clean >= {CLEAN_MIN:.0%} (BC-LSTM {pct(rate('lstm', 'none'))}, BC-NOSTRA "
-            f"{pct(rate('nostra', 'none'))})", min(rate("lstm", "none"), rate("nostra", "none")) >= CLEAN_MIN),
+            f"{pct(rate('nostra', 'none'))})", min(rate("lstm", "none"), rate("nostra", "none")) >= CLEAN_MIN,
+            [rate("lstm", "none"), rate("nostra", "none")]),
            (f"blind control <= {BLIND_MAX:.0%} (BC-LSTM {pct(rate('lstm', 'blind'))}, MLI "
-            f"{pct(rate('nostra_mli', 'blind'))})", max(rate("lstm", "blind"), rate("nostra_mli", "blind")) <= BLIND_MAX),
+            f"{pct(rate('nostra_mli', 'blind'))})", max(rate("lstm", "blind"), rate("nostra_mli", "blind")) <= BLIND_MAX,
+            [rate("lstm", "blind"), rate("nostra_mli", "blind")]),
            (f"mask hurts closed-loop BC-NOSTRA by >= {WITHIN:.0%} ({pct(rate('nostra', 'none'))} -> "
-            f"{pct(rate('nostra', 'mask'))})", rate("nostra", "none") - rate("nostra", "mask") >= WITHIN)]
+            f"{pct(rate('nostra', 'mask'))})", rate("nostra", "none") - rate("nostra", "mask") >= WITHIN,
+            [rate("nostra", "none"), rate("nostra", "mask")])]
     p = pairs[(pairs.checkpoint == checkpoint) & (pairs.seed == seed)] if len(pairs) else pairs
     vs_lstm = p[(p.a == "nostra_mli") & (p.b == "lstm") & (p.noise == "mask")] if len(p) else p
     gain, p_lstm = (vs_lstm["diff"].iloc[0], vs_lstm["p"].iloc[0]) if len(vs_lstm) else (np.nan, np.nan)
     claims = [
         (f"BC-NOSTRA + MLI under mask within {WITHIN:.0%} of its clean success "
          f"({pct(rate('nostra_mli', 'mask'))} vs {pct(rate('nostra', 'none'))})",
-         rate("nostra", "none") - rate("nostra_mli", "mask") <= WITHIN),
+         rate("nostra", "none") - rate("nostra_mli", "mask") <= WITHIN, [rate("nostra", "none"), rate("nostra_mli", "mask")]),
         ("BC-NOSTRA + MLI above BC-LSTM under mask with McNemar p < 0.05 "
          + (f"({gain * 100:+.0f} points, p = {p_lstm:.2g})" if len(vs_lstm) else "(–)"),
-         gain > 0 and p_lstm < 0.05),
+         gain > 0 and p_lstm < 0.05, [gain, p_lstm]),
         (f"AdaMLI within {WITHIN:.0%} of oracle MLI under mask ({pct(rate('nostra_adamli', 'mask'))} vs "
-         f"{pct(rate('nostra_mli', 'mask'))})", abs(rate("nostra_adamli", "mask") - rate("nostra_mli", "mask")) <= WITHIN),
+         f"{pct(rate('nostra_mli', 'mask'))})", abs(rate("nostra_adamli", "mask") - rate("nostra_mli", "mask")) <= WITHIN,
+         [rate("nostra_adamli", "mask"), rate("nostra_mli", "mask")]),
     ]
-    lines = ["| Precondition | holds |", "|---|---|"] + [f"| {t} | {'yes' if ok else 'no'} |" for t, ok in pre]
-    testable = all(ok for _, ok in pre)
+    measured = lambda xs: not any(np.isnan(x) for x in xs)  # noqa: E731
+    lines = ["| Precondition | holds |", "|---|---|"] + [
+        f"| {t} | {('yes' if ok else 'no') if measured(xs) else 'not measured'} |" for t, ok, xs in pre]
+    testable = all(ok and measured(xs) for _, ok, xs in pre)
     lines += ["", "| Claim | verdict |", "|---|---|"]
-    for text, ok in claims:
-        verdict = ("shown" if ok else "not shown") if testable else f"not testable ({'shown' if ok else 'not shown'} as measured)"
+    for text, ok, xs in claims:
+        if not measured(xs):
+            verdict = "not measured"
+        else:
+            verdict = ("shown" if ok else "not shown") if testable else f"not testable ({'shown' if ok else 'not shown'} as measured)"
         lines.append(f"| {text} | {verdict} |")
     return lines
 
