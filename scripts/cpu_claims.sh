@@ -7,6 +7,8 @@
 #
 # Resumable: a cell whose records exist is kept, training continues from last.ckpt.
 #   TASK=liftd1 SEEDS="0 1" MODELS="lstm nostra" make cpu-claims    # MODELS may add rssm diffusion
+# NOISES and CHECKPOINTS pick a subset of the cells to run first (the report covers whatever has run):
+#   SEEDS="0 1" NOISES="none mask blind" CHECKPOINTS=best make cpu-claims
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -15,6 +17,8 @@ SEEDS=${SEEDS:-0 1}
 MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
 HORIZON=${HORIZON:-}
+NOISES=${NOISES:-none mask cam_jitter table_tex clean_windows blind}
+CHECKPOINTS=${CHECKPOINTS:-best last}
 RUNS=data/runs/cpu
 EVAL=$RUNS/evaluate/$TASK
 start=$(date +%s)
@@ -67,8 +71,8 @@ reuse_best() {  # $1 = seed, $2 = noise, $3... = variants: copy each variant's b
   done
 }
 for seed in $SEEDS; do
-  for ck in best last; do
-    for noise in none mask cam_jitter table_tex clean_windows blind; do
+  for ck in $CHECKPOINTS; do
+    for noise in $NOISES; do
       [ $ck = last ] && reuse_best "$seed" "$noise" $(needed $noise)
       todo=""
       for v in $(needed $noise); do  # kept: a variant with records of this cell (make cpu's folder or ours)
