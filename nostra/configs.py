@@ -194,6 +194,52 @@ class TrainConfig:
     rollout: RolloutConfig = field(default_factory=RolloutConfig)
 
 
+@dataclass
+class VariantConfig:
+    """evaluate.variants.<id>: one row of the tables (a null entry leaves the row out)."""
+    checkpoint: str                  # the training run's policy.ckpt (evaluate.checkpoint picks best/last/step)
+    mode: str = "closed"             # closed | oracle (MLI, LI) | adaptive (AdaMLI)
+    rnn_horizon: int | None = None   # reset the recurrent state every this many steps; None: the policy's
+
+
+@dataclass
+class OfflineConfig:
+    """evaluate.offline: per-modality KL and AdaMLI detection on held-out demos (nostra.workflows.analysis)."""
+    enabled: bool = True
+    checkpoint: str = ""
+    collections: list[str] = field(default_factory=list)
+    noise: str = "rgb"               # mask | depth_mask | proprio_zero | rgb | rgbd | all
+    episodes: int = 8                # held-out demos (the training run's validation split)
+    windows: list[list[int]] | None = None   # None: the middle third of each demo
+    setting: str = "default"         # Table 3 column: the data the policy was trained on
+
+
+@dataclass
+class EvaluateConfig:
+    """conf/evaluate: rollouts under the noise suite (nostra.workflows.evaluation) and offline analyses."""
+    tasks: list[str]
+    noises: list[str]
+    out_dir: str
+    ckpt_dir: str = "data/runs/train"
+    variants: dict[str, VariantConfig | None] = field(default_factory=dict)
+    checkpoint: str = "last"         # best (in-training rollouts) | last | step=<n>
+    episodes: int = 10               # per task x noise x variant; episode i has seed `seed + i` for all
+    seed: int = 1000
+    horizon: int | None = None       # None: the task's
+    # task -> [[start, end], ...]; None: the task's noise_windows. Any, not a dict: Hydra merges an
+    # override into a typed dict and refuses its new keys (`evaluate.windows={Lift: [[30, 60]]}`)
+    windows: Any = None
+    noise_params: dict[str, Any] = field(default_factory=dict)
+    workers: int = 2
+    image_size: int | None = None    # None: each checkpoint's; a value that disagrees is refused
+    videos_per_cell: int = 2
+    rollouts: bool = True
+    experiment: str = "nostra"       # MLflow experiment
+    table: str = "robustness"        # which report table these runs feed: robustness | finetune | cotrain
+    setting: str = ""                # the column within it
+    offline: OfflineConfig = field(default_factory=OfflineConfig)
+
+
 # ---- from plain dicts ----------------------------------------------------------------------------
 
 def from_dict(cls: type, data: dict):

@@ -10,7 +10,7 @@ import hydra
 from hydra.core.config_store import ConfigStore
 from omegaconf import OmegaConf
 
-from nostra.configs import MODEL_CONFIGS, TrainConfig
+from nostra.configs import MODEL_CONFIGS, EvaluateConfig, TrainConfig
 
 CONF_DIR = str(Path(__file__).resolve().parents[1] / "conf")
 
@@ -31,11 +31,12 @@ OmegaConf.register_new_resolver("nostra.gpus_per_node", _gpus_per_node, replace=
 
 def register_schemas() -> None:
     """The typed configs (nostra.configs) as structured-config schemas that conf/model/<policy>.yaml
-    and conf/train/default.yaml extend (`defaults: [<policy>_schema, _self_]`)."""
+    conf/train/default.yaml and conf/evaluate/default.yaml extend (`defaults: [<policy>_schema, _self_]`)."""
     store = ConfigStore.instance()
     for policy, schema in MODEL_CONFIGS.items():
         store.store(group="model", name=f"{policy}_schema", node=schema)
     store.store(group="train", name="train_schema", node=TrainConfig)
+    store.store(group="evaluate", name="evaluate_schema", node=EvaluateConfig)
 
 
 register_schemas()  # on import, like the resolvers: hydra.main and the compose API both need them

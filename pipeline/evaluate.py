@@ -10,21 +10,19 @@ from pipeline._hydra import run
 
 
 def _rollouts(cfg, e) -> None:
+    """e: the typed evaluate config (nostra.configs.EvaluateConfig)."""
     from nostra.workflows.evaluation import EvalSpec, Variant, evaluate
     from nostra.policies.checkpoint import select_checkpoint
 
-    variants = [Variant(name, select_checkpoint(v["checkpoint"], e.checkpoint), v.get("mode", "closed"),
-                        v.get("rnn_horizon"))
-                for name, v in OmegaConf.to_container(e.variants, resolve=True).items() if v]  # null: left out
-    spec = EvalSpec(tasks=list(e.tasks), noises=list(e.noises), variants=variants, out_dir=e.out_dir,
-                    episodes=e.episodes, seed=e.seed, horizon=e.horizon,
-                    windows=noise_windows(cfg),
-                    noise_params=OmegaConf.to_container(e.noise_params, resolve=True), workers=e.workers,
-                    image_size=e.image_size, videos_per_cell=e.videos_per_cell, experiment=e.experiment,
-                    checkpoint=str(e.checkpoint),
+    variants = [Variant(name, select_checkpoint(v.checkpoint, e.checkpoint), v.mode, v.rnn_horizon)
+                for name, v in e.variants.items() if v]  # null: left out
+    spec = EvalSpec(tasks=e.tasks, noises=e.noises, variants=variants, out_dir=e.out_dir,
+                    episodes=e.episodes, seed=e.seed, horizon=e.horizon, windows=noise_windows(cfg),
+                    noise_params=e.noise_params, workers=e.workers, image_size=e.image_size,
+                    videos_per_cell=e.videos_per_cell, experiment=e.experiment, checkpoint=e.checkpoint,
                     run_name=f"evaluate-{'-'.join(e.tasks)}",
                     params={"profile": cfg.profile.name, "seed": cfg.seed, "task": ",".join(e.tasks),
-                            "table": e.table, "setting": e.setting, "checkpoint": str(e.checkpoint)})
+                            "table": e.table, "setting": e.setting, "checkpoint": e.checkpoint})
     table = evaluate(spec)
     print((Path(e.out_dir) / "success.md").read_text())
     print(f"{len(table)} cells; results in {e.out_dir}")
@@ -34,6 +32,9 @@ def noise_windows(cfg) -> dict:
     """evaluate.windows, else the task config's noise_windows, else the registry's (paper) ones
     (also what the rollouts during training use)."""
     windows = OmegaConf.to_container(cfg.evaluate.windows, resolve=True) if cfg.evaluate.windows else {}
+    if not isinstance(windows, dict):
+        raise SystemExit(f"evaluate.windows={windows!r}: expected task -> [[start, end], ...], "
+                         f"e.g. 'evaluate.windows={{{cfg.task.name}: [[30, 60]]}}'")
     if cfg.task.name not in windows and cfg.task.get("noise_windows"):
         windows[cfg.task.name] = OmegaConf.to_container(cfg.task.noise_windows, resolve=True)
     return windows
@@ -51,14 +52,14 @@ def _offline(cfg, e) -> None:
     from nostra.workflows.tracking import Tracker
 
     o = e.offline
-    collections = OmegaConf.to_container(o.collections, resolve=True)
+    collections = o.collections
     held_out = held_out_episodes(_run_dir(o.checkpoint), collections)  # the training run's own split
     if not held_out:
         raise ValueError(f"{o.checkpoint}: its training run held out no episode of {collections}")
     spec = OfflineSpec(checkpoint=o.checkpoint, store=cfg.data.store, episodes=held_out[: o.episodes],
-                       noise=o.noise, windows=OmegaConf.to_container(o.windows, resolve=True) if o.windows else None,
+                       noise=o.noise, windows=o.windows,
                        out_dir=str(Path(e.out_dir) / "offline"), seed=cfg.seed,
-                       noise_params=OmegaConf.to_container(e.noise_params, resolve=True))
+                       noise_params=e.noise_params)
     result = analyse(spec)
     tracker = Tracker(e.experiment, f"offline-{'-'.join(e.tasks)}", spec.out_dir,
                       {"checkpoint": o.checkpoint, "noise": o.noise, "episodes": len(spec.episodes),
@@ -79,7 +80,12 @@ def _offline(cfg, e) -> None:
 
 
 def _app(cfg) -> None:
-    e = cfg.evaluate
+    from nostra.configs import typed
+
+    e = typed(cfg.evaluate, "evaluate")  # nostra.configs.EvaluateConfig
+    # data.collections may be one name (an interpolated list is not type-checked)
+    if isinstance(e.offline.collections, str):
+        e.offline.collections = [e.offline.collections]
     if e.rollouts:
         _rollouts(cfg, e)
     if e.offline.enabled:

@@ -17,8 +17,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from conftest import small_net
-from nostra.configs import (MODEL_CONFIGS, ConfigError, EncoderConfig, RolloutConfig, TrainConfig, model_config,
-                            typed)
+from nostra.configs import (MODEL_CONFIGS, ConfigError, EncoderConfig, EvaluateConfig, RolloutConfig, TrainConfig,
+                            VariantConfig, model_config, typed)
 from pipeline._hydra import CONF_DIR
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,6 +103,59 @@ def test_the_documented_overrides_still_compose():
                    "model.net.decoder_hidden=[64,64]", "train.trainer={accelerator: cpu, devices: 2, strategy: ddp}")
     assert typed(cfg.model, "model").net.decoder_hidden == [64, 64]
     assert typed(cfg.train, "train").trainer == {"accelerator": "cpu", "devices": 2, "strategy": "ddp"}
+
+
+@pytest.mark.parametrize("experiment, noises, rows", [
+    ("robustness", ["none", "mask", "cam_jitter", "table_tex"], 7),
+    ("adamli", ["rgb", "rgbd", "all"], 5),
+    ("finetune", ["none"], 3),
+    ("cotrain", ["none"], 1),
+])
+def test_composed_evaluate_config_is_typed_for_every_experiment(experiment, noises, rows):
+    e = typed(_compose(f"+experiment={experiment}").evaluate, "evaluate")
+    assert type(e) is EvaluateConfig and e.noises == noises
+    assert len([v for v in e.variants.values() if v]) == rows
+    assert all(type(v) is VariantConfig for v in e.variants.values() if v)
+
+
+def test_the_documented_evaluate_overrides_compose():
+    e = typed(_compose("evaluate.windows={Lift: [[30, 60]]}", "evaluate.variants.lstm=null",
+                       "evaluate.checkpoint=best", "evaluate.variants.nostra.rnn_horizon=10").evaluate, "evaluate")
+    assert e.windows == {"Lift": [[30, 60]]} and e.variants["lstm"] is None and e.checkpoint == "best"
+    assert e.variants["nostra"].rnn_horizon == 10 and e.variants["nostra_mli"].mode == "oracle"
+
+
+def _evaluate_cli(monkeypatch, capsys, *overrides: str) -> str:
+    import pipeline.evaluate as ev
+    from pipeline.cli import main
+
+    seen = []
+    monkeypatch.setattr(ev, "_rollouts", lambda *a: seen.append(a))
+    monkeypatch.setattr(ev, "_offline", lambda *a: seen.append(a))
+    with pytest.raises((SystemExit, ConfigError)):
+        main(["evaluate", *overrides])
+    assert not seen
+    return capsys.readouterr().err
+
+
+@pytest.mark.parametrize("override, node, valid", [
+    ("evaluate.episods=3", "evaluate", "episodes"),
+    ("evaluate.variants.nostra.mod=oracle", "evaluate.variants.nostra", "mode"),
+    ("evaluate.offline.nose=mask", "evaluate.offline", "noise"),
+])
+def test_an_unknown_evaluate_key_fails_naming_the_valid_ones(monkeypatch, capsys, override, node, valid):
+    key = override.split("=")[0].rpartition(".")[2]
+    err = _evaluate_cli(monkeypatch, capsys, override)
+    assert f"{node} has no key '{key}'; valid keys: " in err and re.search(rf"valid keys: .*\b{valid}\b", err), err
+
+
+def test_evaluate_windows_that_are_not_per_task_fail_with_an_example(monkeypatch, capsys):
+    import pipeline.evaluate as ev
+    from pipeline.cli import main
+
+    monkeypatch.setattr(ev, "_offline", lambda *a: None)
+    with pytest.raises(SystemExit, match=r"evaluate.windows=\[\[30, 60\]\]: expected task -> .*\{Lift: \[\[30, 60\]\]\}"):
+        main(["evaluate", "evaluate.windows=[[30,60]]"])
 
 
 # ---- bad keys and values fail at start -----------------------------------------------------------
