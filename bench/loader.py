@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -18,7 +19,9 @@ import numpy as np
 import torch
 
 from nostra.data import Store, make_loader
-from nostra.data import fixtures as F
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the synthetic episodes the tests use
+import fixtures as F  # noqa: E402
 from nostra.data.formats import robomimic_hdf5
 from nostra.policies import NostraPolicy
 

@@ -173,6 +173,9 @@ class TrainConfig:
     collections: list[str]           # target collection(s)
     obs_keys: list[str] | None       # None: every modality the simulator renders (nostra.modality)
     out_dir: str
+    # {collection: weight}: a mixture of `collections` (not cotrain: its mixture is cotrain_ratio); empty or
+    # None: windows uniformly. Not `| None`: OmegaConf resolves an Optional dict's interpolation too early
+    weights: dict[str, float] = field(default_factory=dict)
     stage: str = "pretrain"          # pretrain | finetune | cotrain
     max_steps: int = 1000
     max_minutes: float | None = None   # wall-clock budget of the whole fit, rollouts included; None: steps only

@@ -10,7 +10,7 @@ import torch
 
 from conftest import small_net
 from nostra.data import CollectionError, SequenceDataset, Store, make_loader, split_episodes
-from nostra.data import fixtures as F
+import fixtures as F
 from nostra.policies import NostraPolicy
 
 KEYS = list(F.PAPER_KEYS)

@@ -15,7 +15,7 @@ import torch
 
 from conftest import small_net, train_spec
 from nostra.data.dataset import MixtureSampler, WindowSampler, make_loader
-from nostra.data.fixtures import write_robomimic
+from fixtures import write_robomimic
 from nostra.data.store import Store
 from nostra.policies.checkpoint import load_net
 from nostra.workflows.tracking import search_runs

@@ -10,7 +10,7 @@ import torch
 
 from conftest import small_net, train_spec
 from nostra.workflows.analysis import OfflineSpec, analyse
-from nostra.data.fixtures import write_robomimic
+from fixtures import write_robomimic
 from nostra.data.store import Store
 from nostra.workflows.evaluation import EvalSpec, Variant, evaluate, wilson
 from nostra.noise import NoiseSchedule

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from nostra.data import DataError, Store, detect
-from nostra.data import fixtures as F
+import fixtures as F
 
 LENGTHS = [12, 7, 9]
 

@@ -1,12 +1,12 @@
-"""Files as other tools write them (nostra.data.fixtures_external says which tool and version each
+"""Files as other tools write them (tests/fixtures_external.py says which tool and version each
 mimics): LeRobot v3.0 task layouts and shared mp4s, LeRobot v2.1, round trips."""
 
 import numpy as np
 import pytest
 
 from nostra.data import DataError, Store
-from nostra.data import fixtures as F
-from nostra.data import fixtures_external as X
+import fixtures as F
+import fixtures_external as X
 
 LENGTHS = [12, 7, 9]
 VIDEO_TOL = 4.0  # mean absolute error (0..255) of AV1 (crf 30) frames against the originals

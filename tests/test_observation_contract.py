@@ -128,7 +128,8 @@ def _evaluate_config(profile: str, out_dir: Path, ckpt: str):
             f"profile={profile}", "task=lift", "evaluate.noises=[none]", "evaluate.episodes=1",
             "evaluate.horizon=3", "evaluate.workers=1", "evaluate.videos_per_cell=0", "evaluate.offline.enabled=false",
             f"evaluate.out_dir={out_dir}"])
-    OmegaConf.update(cfg, "evaluate.variants", {"lstm": {"checkpoint": ckpt, "mode": "closed"}}, merge=False)
+    variants = {name: None for name in cfg.evaluate.variants} | {"lstm": {"checkpoint": ckpt, "mode": "closed"}}
+    OmegaConf.update(cfg, "evaluate.variants", variants, merge=True)
     return cfg
 
 
@@ -136,6 +137,7 @@ def _evaluate_config(profile: str, out_dir: Path, ckpt: str):
 def test_evaluation_takes_keys_and_image_size_from_the_checkpoint(tmp_path, monkeypatch, fake_sim, ckpt, profile):
     import nostra.workflows.figures as figures
     import nostra.workflows.tracking as tracking
+    from nostra.configs import typed
     from pipeline.evaluate import _rollouts
 
     class QuietTracker:  # no MLflow run: this test is about what is rendered
@@ -149,7 +151,7 @@ def test_evaluation_takes_keys_and_image_size_from_the_checkpoint(tmp_path, monk
     monkeypatch.setattr(figures, "trajectory_figure", lambda *a: None)
     cfg = _evaluate_config(profile, tmp_path / "ev", ckpt)
     assert cfg.profile.image_size != SIZE and cfg.evaluate.image_size is None
-    _rollouts(cfg, cfg.evaluate)
+    _rollouts(cfg, typed(cfg.evaluate, "evaluate"))
     assert fake_sim.built == [("Lift", SIZE)]
     assert (tmp_path / "ev/failures.log").read_text() == ""  # the runner got its shapes
     record = np.load(tmp_path / "ev/records/Lift/none/lstm_seed1000.npz")

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from conftest import small_net, train_spec
-from nostra.data.fixtures import write_robomimic
+from fixtures import write_robomimic
 from nostra.data.store import Store
 from nostra.modality import Modality
 from nostra.models.encoders import ImageAug

@@ -10,7 +10,7 @@ from pathlib import Path
 import h5py
 import pytest
 
-from nostra.data.fixtures import write_robomimic
+from fixtures import write_robomimic
 from nostra.data.store import Store
 
 

@@ -6,9 +6,9 @@ import json
 
 import pytest
 
-from nostra.data.fixtures import make_episodes
+from fixtures import make_episodes
 from nostra.data.formats import robomimic_hdf5
-from nostra.data.fixtures import ENV_ARGS
+from fixtures import ENV_ARGS
 from nostra.data.store import Store
 from retrieval.index import EpisodeIndex, IndexMismatchError
 from retrieval.select import index_store, manifest_hash, select, write_manifest

@@ -15,7 +15,7 @@ from pathlib import Path
 import mlflow
 import pytest
 
-from nostra.data.fixtures import write_robomimic
+from fixtures import write_robomimic
 from nostra.data.store import Store
 
 ROOT = Path(__file__).resolve().parents[1]

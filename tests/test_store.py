@@ -13,7 +13,7 @@ import pytest
 import zarr
 
 from nostra.data import CollectionError, DataError, Store
-from nostra.data import fixtures as F
+import fixtures as F
 from nostra.data import store as store_mod
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from nostra.data import DataError, Store
-from nostra.data import fixtures as F
+import fixtures as F
 
 
 @pytest.fixture

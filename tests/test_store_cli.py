@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nostra.data import Store
-from nostra.data import fixtures as F
+import fixtures as F
 from pipeline.cli import main
 
 

@@ -8,7 +8,7 @@ import torch
 
 from conftest import small_net, train_spec
 from nostra.data.dataset import held_out_episodes, split_episodes
-from nostra.data.fixtures import write_robomimic
+from fixtures import write_robomimic
 from nostra.data.store import Store
 from nostra.policies.checkpoint import CheckpointError, load_runner
 from nostra.workflows.tracking import search_runs
@@ -79,6 +79,26 @@ def test_finetune_and_cotrain(store, tmp_path):
     assert co["manifest_hash"] and co["train_episodes"] == 6
     runs = search_runs("test")
     assert co["manifest_hash"] in set(runs["params.manifest_hash"])
+
+
+def test_a_mixture_of_collections_by_weight(store, tmp_path):
+    """data.weights draws windows by collection (MixtureSampler): a collection with weight 0 gives none."""
+    from nostra.data.dataset import MixtureSampler
+    from nostra.workflows.training import _episodes
+
+    mixed = spec(store, tmp_path / "m", collections=["target", "library"], weights={"target": 1.0, "library": 0.0})
+    train_eps, _, weights, _ = _episodes(mixed, store)
+    assert weights == {"target": 1.0, "library": 0.0} and {c for c, _ in train_eps} == {"target", "library"}
+    sampler = MixtureSampler({"target": (0, 10), "library": (10, 20)}, weights, 50, seed=0)
+    assert all(i < 10 for i in sampler)
+    assert train(mixed)["steps"] == 6
+    with pytest.raises(ValueError, match=r"one weight per collection of data.collections=\['target', 'library'\]"):
+        train(spec(store, tmp_path / "m2", collections=["target", "library"], weights={"target": 1.0}))
+    manifest = tmp_path / "manifest.json"
+    manifest.write_text(json.dumps({"episodes": [{"collection": "library", "episode": 0}]}))
+    with pytest.raises(ValueError, match="cotrain_ratio"):
+        train(spec(store, tmp_path / "m3", stage="cotrain", manifest=str(manifest), weights={"target": 1.0}))
+    assert not (tmp_path / "m2").exists() and not (tmp_path / "m3").exists()
 
 
 def test_bad_inputs_fail_before_training(store, tmp_path):

@@ -86,7 +86,10 @@ def _episodes(spec: TrainSpec, store: Store):
             raise ValueError(f"num_demos={t.num_demos}, but {t.collections} have {len(train)} training demos")
         train = sorted(train)[: t.num_demos]
     if t.stage != "cotrain":
-        return train, val, None, None
+        return train, val, _mixture(t), None
+    if t.weights:
+        raise ValueError("stage=cotrain mixes target and retrieved demos by train.cotrain_ratio; "
+                         f"data.weights={t.weights} is for the other stages")
     if not t.manifest:
         raise ValueError("stage=cotrain needs a retrieval manifest (train.manifest=<path>)")
     extra, digest = read_manifest(t.manifest, store)
@@ -102,6 +105,16 @@ def _episodes(spec: TrainSpec, store: Store):
     weights = {c: t.cotrain_ratio / len(t.collections) for c in t.collections}
     weights.update({c: (1 - t.cotrain_ratio) * n / len(extra) for c, n in counts.items()})
     return train + extra, val, weights, digest
+
+
+def _mixture(t: TrainConfig) -> dict[str, float] | None:
+    """data.weights, checked against the collections trained on."""
+    if not t.weights:
+        return None
+    if set(t.weights) != set(t.collections):
+        raise ValueError(f"data.weights={t.weights} must give one weight per collection of "
+                         f"data.collections={t.collections}")
+    return dict(t.weights)
 
 
 def _module(spec: TrainSpec, modalities, action_dim: int, stats: dict):

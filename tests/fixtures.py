@@ -1,5 +1,5 @@
 """Tiny datasets in every supported format, written by code (no binaries in the repository), for
-tests and demos: a robomimic HDF5 with the paper's six keys, a LeRobot v3 dataset and a
+the tests and bench/loader.py: a robomimic HDF5 with the paper's six keys, a LeRobot v3 dataset and a
 diffusion_policy zarr ReplayBuffer, all from the same synthetic episodes."""
 
 from __future__ import annotations
