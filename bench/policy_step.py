@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from nostra.modality import sim_observations
-from nostra.policies import POLICIES
+from nostra.policies import POLICIES, policy_module
 
 # what the simulator renders at 84 px, but depth: two RGB views and the proprioception
 MODALITIES = [m for m in sim_observations(84).modalities if m.kind != "depth"]
@@ -112,8 +112,8 @@ def main() -> None:
     amortised, worst = {}, {}
     for name in names:
         policy, kwargs = VARIANTS[name]
-        module_cls, runner_cls = POLICIES[policy]
-        net = module_cls(MODALITIES, 7, net={"image_encoder": "light"}).net
+        runner_cls = POLICIES[policy][1]
+        net = policy_module(policy)(MODALITIES, 7, net={"image_encoder": "light"}).net
         runner = runner_cls(net, **kwargs)
         times, planned = step_times_ms(runner, args.steps, args.warmup)
         stats = summarise(times, planned, cycle_length(runner))

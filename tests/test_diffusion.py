@@ -15,7 +15,8 @@ from nostra.data.stats import fit_stats
 from nostra.models.normalizer import Normalizer
 from nostra.policies import policy_module
 from nostra.policies.checkpoint import load_net, load_runner
-from nostra.policies.diffusion import DiffusionNet, DiffusionPolicy, DiffusionRunner
+from nostra.policies.diffusion import DiffusionNet, DiffusionRunner
+from nostra.policies.modules import DiffusionPolicy
 
 MODS = [{"name": "pos", "kind": "lowdim", "shape": [2]}]
 TINY = dict(embed_dim=16, encoder_hidden=[32], down_dims=[16, 32], step_embed_dim=16)

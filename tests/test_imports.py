@@ -143,3 +143,29 @@ def test_checkpoint_module_imports_in_a_fresh_interpreter():
             "assert 'nostra.policies.base' in sys.modules")
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
+
+
+def test_rollouts_load_a_policy_without_importing_lightning(tmp_path):
+    """What an evaluation worker imports (the runners, checkpoint loading, the episode engine) leaves
+    Lightning out: it costs seconds at every process start. Training still gets it on use."""
+    import numpy as np
+    import torch
+
+    from conftest import small_net
+    from nostra.modality import sim_observations
+    from nostra.policies import policy_module
+
+    mods = [m for m in sim_observations(36).modalities if m.kind == "lowdim"]
+    module = policy_module("lstm")(mods, 7, net=small_net("lstm"))
+    dims = {m.name: m.shape for m in mods} | {"actions": (7,)}
+    module.set_normalization({k: {"mean": np.zeros(d), "std": np.ones(d)} for k, d in dims.items()})
+    ckpt = {"state_dict": module.state_dict()}
+    module.on_save_checkpoint(ckpt)
+    torch.save(ckpt, tmp_path / "lstm.ckpt")
+    code = ("import sys; import nostra.sim.rollout, nostra.workflows.evaluation, nostra.episode; "
+            "from nostra.policies.checkpoint import load_runner; "
+            f"r = load_runner({str(tmp_path / 'lstm.ckpt')!r}); r.reset(); "
+            "assert 'lightning' not in sys.modules, [m for m in sys.modules if m.startswith('lightning')][:5]; "
+            "from nostra.policies import NostraPolicy; assert 'lightning' in sys.modules")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]

@@ -1,18 +1,21 @@
-"""Policies by name: each a LightningModule for training and a stateful runner for rollouts."""
+"""Policies by name: each a network and a stateful runner for rollouts (importing this package does
+not import Lightning), and a LightningModule for training (nostra.policies.modules, loaded on use)."""
 
 from __future__ import annotations
 
-from nostra.policies.diffusion import DiffusionNet, DiffusionPolicy, DiffusionRunner
-from nostra.policies.lstm import LSTMNet, LSTMPolicy, LSTMRunner
-from nostra.policies.nostra import NostraNet, NostraPolicy, NostraRunner
-from nostra.policies.rssm import RSSMNet, RSSMPolicy, RSSMRunner
+from nostra.policies.diffusion import DiffusionNet, DiffusionRunner
+from nostra.policies.lstm import LSTMNet, LSTMRunner
+from nostra.policies.nostra import NostraNet, NostraRunner
+from nostra.policies.rssm import RSSMNet, RSSMRunner
 
+# name -> (network, runner)
 POLICIES = {
-    "nostra": (NostraPolicy, NostraRunner),
-    "rssm": (RSSMPolicy, RSSMRunner),
-    "lstm": (LSTMPolicy, LSTMRunner),
-    "diffusion": (DiffusionPolicy, DiffusionRunner),
+    "nostra": (NostraNet, NostraRunner),
+    "rssm": (RSSMNet, RSSMRunner),
+    "lstm": (LSTMNet, LSTMRunner),
+    "diffusion": (DiffusionNet, DiffusionRunner),
 }
+_MODULES = ("NostraPolicy", "RSSMPolicy", "LSTMPolicy", "DiffusionPolicy", "PolicyModule")
 
 
 def _lookup(name: str):
@@ -21,7 +24,7 @@ def _lookup(name: str):
     return POLICIES[name]
 
 
-def policy_module(name: str):
+def net_class(name: str):
     return _lookup(name)[0]
 
 
@@ -29,6 +32,21 @@ def runner_class(name: str):
     return _lookup(name)[1]
 
 
-__all__ = ["POLICIES", "policy_module", "runner_class", "NostraNet", "NostraPolicy", "NostraRunner",
-           "RSSMNet", "RSSMPolicy", "RSSMRunner", "LSTMNet", "LSTMPolicy", "LSTMRunner",
-           "DiffusionNet", "DiffusionPolicy", "DiffusionRunner"]
+def policy_module(name: str):
+    """The LightningModule class that trains policy ``name`` (imports Lightning)."""
+    _lookup(name)
+    from nostra.policies.modules import MODULES
+
+    return MODULES[name]
+
+
+def __getattr__(name: str):  # the Lightning modules by name, imported on first use
+    if name in _MODULES:
+        from nostra.policies import modules
+
+        return getattr(modules, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = ["POLICIES", "net_class", "policy_module", "runner_class", "NostraNet", "NostraRunner", "RSSMNet",
+           "RSSMRunner", "LSTMNet", "LSTMRunner", "DiffusionNet", "DiffusionRunner", *_MODULES]

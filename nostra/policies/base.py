@@ -1,5 +1,6 @@
-"""What every policy shares: the network base (encoders + normaliser), the Lightning training
-wrapper, and the stateful runner used by rollouts and deployment.
+"""What every policy shares: the network base (encoders + normaliser) and the stateful runner used
+by rollouts and deployment; no Lightning (the training wrappers: nostra.policies.modules), so
+evaluation and deployment start without importing it.
 
 Batches are ``{"obs": {key: (B,T,...)}, "actions": (B,T,A)}`` with raw values (images uint8,
 lowdim and actions unnormalised): the network normalises, so training and rollouts share one path.
@@ -7,20 +8,17 @@ lowdim and actions unnormalised): the network normalises, so training and rollou
 
 from __future__ import annotations
 
-from dataclasses import asdict
 from typing import Any, Iterable
 
-import lightning as L
 import numpy as np
 import torch
 from torch import nn
 
-from nostra.configs import model_config
-from nostra.modality import Modality, as_modalities, to_plain
+from nostra.modality import Modality, as_modalities
 from nostra.models.encoders import ModalityEncoder
 from nostra.models.normalizer import Normalizer
 
-# The version of the metadata PolicyModule.on_save_checkpoint writes; nostra.policies.checkpoint
+# The version of the metadata PolicyModule.on_save_checkpoint (nostra.policies.modules) writes; nostra.policies.checkpoint
 # reads checkpoints and refuses other versions. The dependency is one-way: checkpoint.py imports
 # this module (and the policy registry), this module knows nothing of reading checkpoints.
 CHECKPOINT_FORMAT = 1
@@ -68,66 +66,6 @@ class PolicyNet(nn.Module):
 
     def loss(self, batch: dict, **cfg) -> dict[str, Any]:
         raise NotImplementedError
-
-
-class PolicyModule(L.LightningModule):
-    """Lightning wrapper: teacher-forced sequence training, Adam with a constant learning rate
-    (paper Table 7), logging with the design's metric names. ``net``, ``optim`` and ``loss`` are
-    plain dicts, completed and checked by the policy's typed config (nostra.configs)."""
-
-    net_cls: type[PolicyNet] = PolicyNet
-
-    def __init__(self, modalities: list[Modality], action_dim: int, net: dict | None = None,
-                 optim: dict | None = None, loss: dict | None = None):
-        super().__init__()
-        modalities = as_modalities(modalities)  # dicts too: load_from_checkpoint passes the saved hparams
-        self.config = model_config(self.net_cls.policy, net=net, optim=optim, loss=loss)
-        # the constructor's arguments (load_from_checkpoint passes them back), plain values only:
-        # checkpoints are read with torch.load(weights_only=True)
-        sections = {k: v for k, v in asdict(self.config).items() if k != "policy"}
-        self.save_hyperparameters({"modalities": to_plain(modalities), "action_dim": int(action_dim), **sections})
-        self.net = self.net_cls(modalities, action_dim, **asdict(self.config.net))
-        self.loss_cfg = asdict(self.config.loss) if hasattr(self.config, "loss") else {}
-
-    @property
-    def policy(self) -> str:
-        return self.net_cls.policy
-
-    def set_normalization(self, stats: dict) -> None:
-        self.net.normalizer.set_stats(stats)
-
-    def training_step(self, batch, batch_idx):
-        out = self.net.loss(batch, **self.loss_cfg)
-        self._log("train", out, batch)
-        return out["loss"]
-
-    def validation_step(self, batch, batch_idx):
-        out = self.net.loss(batch, **self.loss_cfg)
-        self._log("val", out, batch)
-        return out["loss"]
-
-    def _log(self, prefix: str, out: dict, batch: dict) -> None:
-        # sync_dist: under DDP a logged value is the mean over the ranks (the global batch), as one
-        # process with the whole batch would log it; a no-op in a single process
-        bs = batch["actions"].shape[0]
-        for k in ("loss", "nll", "kl"):
-            if k in out:
-                self.log(f"{prefix}/{k}", out[k], prog_bar=(k == "loss"), batch_size=bs, sync_dist=True)
-        for g, v in out.get("kl_nats", {}).items():
-            name = f"kl_nats/{g}" if prefix == "train" else f"{prefix}/kl_nats/{g}"
-            self.log(name, v, batch_size=bs, sync_dist=True)
-
-    def configure_optimizers(self):
-        return torch.optim.Adam(self.parameters(), lr=self.config.optim.lr)
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        # the whole typed config (policy, net, optim, loss); nostra.policies.checkpoint rebuilds it
-        checkpoint["nostra"] = {
-            "format": CHECKPOINT_FORMAT,
-            "modalities": self.hparams["modalities"],
-            "action_dim": self.hparams["action_dim"],
-            **asdict(self.config),
-        }
 
 
 class Runner:

@@ -1,8 +1,8 @@
 """Loading a trained policy from a Lightning checkpoint with no training code, with clear errors
 for a file that is not a policy checkpoint, another policy, or another modality set.
 
-The metadata is written by ``PolicyModule.on_save_checkpoint`` (nostra.policies.base, which also
-defines CHECKPOINT_FORMAT). Imports go one way: this module imports base and the policy registry
+The metadata is written by ``PolicyModule.on_save_checkpoint`` (nostra.policies.modules;
+CHECKPOINT_FORMAT is in nostra.policies.base). Imports go one way: this module imports base and the policy registry
 (nostra.policies); neither imports this module (tests/test_imports.py checks it)."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import torch
 
 from nostra.configs import ConfigError, ModelConfig, model_config
 from nostra.modality import as_modalities
-from nostra.policies import POLICIES, runner_class
+from nostra.policies import POLICIES, net_class, runner_class
 from nostra.policies.base import CHECKPOINT_FORMAT
 
 
@@ -53,7 +53,7 @@ def load_net(path, expected_policy: str | None = None, expected_modalities: Iter
     if expected_modalities is not None and sorted(expected_modalities) != sorted(names):
         raise CheckpointError(f"{path} was trained on modalities {sorted(names)}, "
                               f"but {sorted(expected_modalities)} were given")
-    net = POLICIES[policy][0].net_cls(modalities, meta["action_dim"], **asdict(stored_config(path, meta).net))
+    net = net_class(policy)(modalities, meta["action_dim"], **asdict(stored_config(path, meta).net))
     # a policy that trains with an EMA copy (diffusion's AveragedModel ``ema_net``) deploys the averaged weights
     prefix = "ema_net.module." if any(k.startswith("ema_net.module.") for k in state) else "net."
     weights = {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}

@@ -6,7 +6,6 @@ schedule. The runner executes ``n_action_steps`` actions of each chunk, then re-
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from typing import Iterable
 
@@ -14,12 +13,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from diffusers import DDIMScheduler, DDPMScheduler
-from diffusers.optimization import get_scheduler
-from torch.optim.swa_utils import AveragedModel
 
 from nostra.models.normalizer import Normalizer
 from nostra.models.unet1d import ConditionalUnet1d
-from nostra.policies.base import PolicyModule, PolicyNet, Runner
+from nostra.policies.base import PolicyNet, Runner
 
 SAMPLERS = ("ddpm", "ddim")
 
@@ -102,61 +99,6 @@ class DiffusionNet(PolicyNet):
         for t in scheduler.timesteps:
             x = scheduler.step(self.unet(x, t, cond), t, x, generator=generator).prev_sample
         return self.normalizer.from_unit_range("actions", x.clamp(-1, 1))
-
-
-def ema_multi_avg(power: float = 0.75, max_decay: float = 0.9999):
-    """diffusion_policy's EMA warm-up: decay = 1 - (1 + step) ** -power (0 at the first update, so
-    short runs are not stuck near the initial weights), capped at max_decay."""
-
-    def update(ema_params, params, n_averaged):
-        decay = min(max_decay, 1.0 - float(n_averaged) ** -power)  # n_averaged >= 1 here
-        for e, p in zip(ema_params, params):
-            e.lerp_(p, 1.0 - decay)
-
-    return update
-
-
-class DiffusionPolicy(PolicyModule):
-    """Trains ``net``; ``ema_net`` (an AveragedModel of it) holds the weights that are validated
-    and deployed (checkpoint.load_net picks them)."""
-
-    net_cls = DiffusionNet
-
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        optim = self.config.optim  # nostra.configs.DiffusionOptimConfig
-        self.ema_net = AveragedModel(self.net, multi_avg_fn=ema_multi_avg(optim.ema_power, optim.ema_max_decay))
-        self.ema_net.requires_grad_(False)
-
-    def set_normalization(self, stats: dict) -> None:
-        super().set_normalization(stats)
-        self.ema_net.module.normalizer.set_stats(stats)
-
-    def on_train_batch_end(self, outputs, batch, batch_idx) -> None:
-        self.ema_net.update_parameters(self.net)
-        for e, b in zip(self.ema_net.module.buffers(), self.net.buffers()):  # buffers are copied, not averaged
-            e.copy_(b)
-
-    def validation_step(self, batch, batch_idx):
-        out = self.ema_net.module.loss(batch)
-        self._log("val", out, batch)
-        return out["loss"]
-
-    def _log(self, prefix: str, out: dict, batch: dict) -> None:
-        super()._log(prefix, out, batch)
-        self.log(f"{prefix}/mse", out["mse"], batch_size=batch["actions"].shape[0], sync_dist=True)
-
-    def configure_optimizers(self):
-        cfg = self.config.optim
-        opt = torch.optim.AdamW(self.net.parameters(), lr=cfg.lr, betas=tuple(cfg.betas), eps=cfg.eps,
-                                weight_decay=cfg.weight_decay)
-        total = cfg.total_steps or self.trainer.estimated_stepping_batches
-        if not math.isfinite(total):
-            raise ValueError("the cosine learning-rate schedule needs a finite length: set the trainer's max_steps "
-                             "or max_epochs, or optim.total_steps")
-        sched = get_scheduler(cfg.lr_scheduler, opt, num_warmup_steps=int(cfg.warmup_steps),
-                              num_training_steps=int(total))
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
 
 class DiffusionRunner(Runner):

@@ -14,7 +14,7 @@ import torch
 from torch import nn
 
 from nostra.models.heads import make_head
-from nostra.policies.base import PolicyModule, PolicyNet, Runner
+from nostra.policies.base import PolicyNet, Runner
 
 
 class LSTMNet(PolicyNet):
@@ -43,10 +43,6 @@ class LSTMNet(PolicyNet):
 
     def act(self, feats: torch.Tensor) -> torch.Tensor:
         return self.normalizer.unnormalize("actions", self.head.act(feats))
-
-
-class LSTMPolicy(PolicyModule):
-    net_cls = LSTMNet
 
 
 class LSTMRunner(Runner):

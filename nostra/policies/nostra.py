@@ -1,15 +1,11 @@
 """BC-NOSTRA: one stochastic latent per modality, so any subset can be imagined (MLI / AdaMLI)."""
 
-from nostra.policies.state_space import StateSpaceModule, StateSpaceNet, StateSpaceRunner
+from nostra.policies.state_space import StateSpaceNet, StateSpaceRunner
 
 
 class NostraNet(StateSpaceNet):
     policy = "nostra"
     joint_latent = False
-
-
-class NostraPolicy(StateSpaceModule):
-    net_cls = NostraNet
 
 
 class NostraRunner(StateSpaceRunner):

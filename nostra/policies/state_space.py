@@ -15,7 +15,7 @@ from nostra.policies.imagination import AdaMLI, AdaMLIConfig
 from nostra.models.fusion import ModalityTransformer
 from nostra.models.heads import make_head
 from nostra.models.rssm import MultimodalRSSM, balanced_kl, diag_kl
-from nostra.policies.base import PolicyModule, PolicyNet, Runner
+from nostra.policies.base import PolicyNet, Runner
 
 JOINT = "joint"
 
@@ -131,7 +131,3 @@ class StateSpaceRunner(Runner):
         action = net.act(net.fusion(self.z.transpose(0, 1)))[0].cpu().numpy()
         info = {"kl": kl, "imagined": {m: bool(flags[net.group_of(m)]) for m in net.modality_names}}
         return action, info
-
-
-class StateSpaceModule(PolicyModule):
-    """Trains with the KL-balanced loss; beta and gamma: the config's ``loss`` (nostra.configs.KLLossConfig)."""
