@@ -211,7 +211,7 @@ class OfflineConfig:
     enabled: bool = True
     checkpoint: str = ""
     collections: list[str] = field(default_factory=list)
-    noise: str = "rgb"               # mask | depth_mask | proprio_zero | rgb | rgbd | all
+    noise: str = "rgb"               # mask | depth_mask | proprio_zero | proprio_stuck | rgb | rgbd | all
     episodes: int = 8                # held-out demos (the training run's validation split)
     windows: list[list[int]] | None = None   # None: the middle third of each demo
     setting: str = "default"         # Table 3 column: the data the policy was trained on

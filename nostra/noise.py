@@ -153,6 +153,23 @@ class ProprioZero(Injector):
         return {k: (np.zeros_like(v) if k in self.keys else v) for k, v in obs.items()}
 
 
+@dataclass
+class ProprioStuck(Injector):
+    """Proprioception freezes: every step of a window reads what the sensors read when it opened
+    (a stuck sensor: plausible values, no longer true, unlike proprio_zero's obvious failure)."""
+
+    keys: tuple[str, ...] = PROPRIO_KEYS
+    _held: dict | None = field(default=None, repr=False)
+
+    def begin(self, env, rng):
+        self._held = None
+
+    def corrupt(self, obs):
+        if self._held is None:
+            self._held = {k: np.array(obs[k], copy=True) for k in self.keys if k in obs}
+        return {k: (self._held[k].copy() if k in self._held else v) for k, v in obs.items()}
+
+
 def _suite(name: str, params: dict) -> list[Injector]:
     unknown = set(params) - {"name", "mask_size", "jitter_std", "texture"}
     if unknown:
@@ -167,6 +184,7 @@ def _suite(name: str, params: dict) -> list[Injector]:
         "cam_jitter": [CamJitter(params.get("jitter_std", 0.1))],
         "table_tex": [TableTexture(params.get("texture", UNSEEN_TABLE_TEXTURE))],
         "proprio_zero": [ProprioZero()],
+        "proprio_stuck": [ProprioStuck()],
         "rgb": [rgb],
         "rgbd": [rgb, depth],
         "all": [rgb, depth, ProprioZero()],
@@ -175,8 +193,8 @@ def _suite(name: str, params: dict) -> list[Injector]:
     }[name]
 
 
-NOISES = ("none", "mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero", "rgb", "rgbd", "all", "blind",
-          "clean_windows")
+NOISES = ("none", "mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero", "proprio_stuck", "rgb", "rgbd",
+          "all", "blind", "clean_windows")
 WHOLE_EPISODE = ("blind",)  # noises that ignore the windows: active from the first step to the last
 
 

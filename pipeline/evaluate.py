@@ -71,6 +71,7 @@ def _offline(cfg, e) -> None:
         metrics.update({"detect/precision": result["detect"]["all"]["precision"],
                         "detect/recall": result["detect"]["all"]["recall"]})
         metrics.update({f"detect/{k}/{m}": s[k] for m, s in result["detect"].items() for k in ("precision", "recall")})
+    metrics.update({f"false_imagination/{m}": v for m, v in result.get("false_imagination", {}).items()})
     tracker.log_metrics(metrics)
     for name in ("offline.md", "kl_episode.png"):
         if (Path(spec.out_dir) / name).is_file():

@@ -109,6 +109,18 @@ def test_noise_window_timeline():
         NoiseSchedule("mask", [(5, 5)])
 
 
+def test_a_stuck_sensor_holds_what_it_read_when_the_window_opened():
+    s = NoiseSchedule("proprio_stuck", [(2, 4), (5, 7)])
+    pos = lambda t: {"robot0_eef_pos": np.full(3, t, np.float32), "agentview_image": np.full((2, 2, 3), t, np.uint8)}  # noqa: E731
+    seen = []
+    for t in range(8):
+        s.prepare(None, t, np.random.default_rng(0), image_size=2)
+        seen.append(s.corrupt(pos(t), t))
+    assert [float(o["robot0_eef_pos"][0]) for o in seen] == [0, 1, 2, 2, 4, 5, 5, 7]  # each window holds its first
+    assert [int(o["agentview_image"][0, 0, 0]) for o in seen] == list(range(8))      # cameras untouched
+    assert s.keys == {"robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos"}
+
+
 def test_offline_analysis(tmp_path, ckpts):
     _, s, c = ckpts
     result = analyse(OfflineSpec(c["nostra"], str(s.path), [("t", 0), ("t", 1)], noise="rgb",
@@ -116,6 +128,13 @@ def test_offline_analysis(tmp_path, ckpts):
     assert set(result["action_mse"]) == {"clean", "closed", "oracle", "adaptive"}
     assert set(result["kl_nats"]) == set(KEYS)
     assert "agentview_image" in result["detect"]
+    assert set(result["false_imagination"]) == set(KEYS) | {"all"}
+    assert all(0 <= v <= 1 for v in result["false_imagination"].values())
+    for m in KEYS:  # an interval over the 2 episodes around the mean of their means
+        lo, hi = result["kl_nats_ci"][m]
+        assert lo <= hi and (lo <= result["kl_nats"][m] <= hi or np.isclose(lo, hi))
+    saved = json.loads((tmp_path / "off/offline.json").read_text())
+    assert saved["noise"] == "rgb" and saved["episodes"] == [["t", 0], ["t", 1]] and saved["kl_nats"] == result["kl_nats"]
     assert (tmp_path / "off/kl_episode.png").is_file() and "AdaMLI precision" in (tmp_path / "off/offline.md").read_text()
     with pytest.raises(ValueError, match="needs the simulator"):
         analyse(OfflineSpec(c["nostra"], str(s.path), [("t", 0)], noise="cam_jitter"))

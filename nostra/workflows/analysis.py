@@ -2,13 +2,16 @@
 injected into stored episodes and each policy variant is stepped through them.
 
 * action error inside the noise windows, per variant (paper Figure 4 in numbers);
-* AdaMLI detection precision / recall against the true windows, per modality;
-* mean per-modality KL in nats over the clean episodes (Table 3), logged as `kl_nats/<modality>`;
+* AdaMLI detection precision / recall against the true windows, per modality, and its false
+  imagination rate on the clean episodes (share of steps it imagines where nothing is wrong);
+* mean per-modality KL in nats over the clean episodes (Table 3), logged as `kl_nats/<modality>`,
+  with a 95% interval over the held-out episodes;
 * a Figure-5-style plot of per-modality KL over one noisy episode with AdaMLI's decisions.
 """
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,7 +25,7 @@ from nostra.policies.imagination import detection_scores
 from nostra.noise import NoiseSchedule, check_noise
 
 # noises that act on stored observations (camera jitter and texture swaps need the simulator)
-OFFLINE_NOISES = ("mask", "depth_mask", "proprio_zero", "rgb", "rgbd", "all")
+OFFLINE_NOISES = ("mask", "depth_mask", "proprio_zero", "proprio_stuck", "rgb", "rgbd", "all")
 
 
 @dataclass
@@ -73,6 +76,8 @@ def analyse(spec: OfflineSpec) -> dict:
         variants["adaptive"] = load_runner(spec.checkpoint, adaptive=True)
     errors = {v: [] for v in ["clean", *variants]}
     kl_clean = {m: [] for m in closed.net.groups} if closed.can_imagine else {}
+    kl_episodes = {m: [] for m in kl_clean}           # each held-out episode's mean: the intervals' samples
+    clean_flags = {m: [] for m in names}              # AdaMLI on the clean episodes: false imagination
     flags, truth = {m: [] for m in names}, {m: [] for m in names}
     figure_done = False
     for ep_i, (coll, ep) in enumerate(tqdm(spec.episodes, desc="offline", disable=not spec.progress)):
@@ -86,6 +91,11 @@ def analyse(spec: OfflineSpec) -> dict:
         errors["clean"].append(_err(np.asarray(run.action), target, inside))
         for g in kl_clean:
             kl_clean[g] += [i[g] for i in run.kl]
+            kl_episodes[g].append(float(np.mean([i[g] for i in run.kl])))
+        if "adaptive" in variants:
+            run = _replay(variants["adaptive"], obs, length, NoiseSchedule("none", []), "adaptive", image_size, seed)
+            for m in names:
+                clean_flags[m] += [i[m] for i in run.imagined]
         for v, runner in variants.items():
             run = _replay(runner, obs, length, schedule, v, image_size, seed)
             errors[v].append(_err(np.asarray(run.action), target, inside))
@@ -100,13 +110,30 @@ def analyse(spec: OfflineSpec) -> dict:
                               title=f"{coll} episode {ep}, noise {spec.noise}")
                     figure_done = True
     result = {"action_mse": {v: float(np.nanmean(e)) for v, e in errors.items()},
-              "kl_nats": {g: float(np.mean(v)) for g, v in kl_clean.items()}}
+              "kl_nats": {g: float(np.mean(v)) for g, v in kl_clean.items()},
+              "kl_nats_ci": {g: mean_interval(v) for g, v in kl_episodes.items()}}
+    if clean_flags[names[0]]:
+        result["false_imagination"] = {m: float(np.mean(f)) for m, f in clean_flags.items()}
+        result["false_imagination"]["all"] = float(np.mean(np.concatenate([clean_flags[m] for m in names])))
     if flags[names[0]]:
         result["detect"] = {m: detection_scores(np.array(flags[m]), np.array(truth[m])) for m in names}
         result["detect"]["all"] = detection_scores(np.concatenate([flags[m] for m in names]),
                                                    np.concatenate([truth[m] for m in names]))
     (out / "offline.md").write_text(markdown(result, spec))
+    (out / "offline.json").write_text(json.dumps({"noise": spec.noise, "checkpoint": spec.checkpoint,
+                                                  "episodes": [list(e) for e in spec.episodes], **result}, indent=1))
     return result
+
+
+def mean_interval(samples, level: float = 0.95) -> list[float]:
+    """Student-t interval of the mean of per-episode values (one value: no interval)."""
+    from scipy import stats
+
+    x = np.asarray(samples, float)
+    if len(x) < 2:
+        return [float("nan"), float("nan")]
+    lo, hi = stats.t.interval(level, len(x) - 1, loc=x.mean(), scale=stats.sem(x))
+    return [float(lo), float(hi)]
 
 
 def _err(actions: np.ndarray, target: np.ndarray, inside: np.ndarray) -> float:
@@ -120,9 +147,15 @@ def markdown(result: dict, spec: OfflineSpec) -> str:
              "| variant | action MSE inside the windows |", "|---|---|"]
     lines += [f"| {v} | {e:.4f} |" for v, e in result["action_mse"].items()]
     if result["kl_nats"]:
-        lines += ["", "| modality | mean KL on clean demos (nats) |", "|---|---|"]
-        lines += [f"| {m} | {v:.3f} |" for m, v in result["kl_nats"].items()]
+        total = sum(result["kl_nats"].values())
+        lines += ["", "| modality | mean KL on clean demos (nats per step) | 95% CI over episodes | share |",
+                  "|---|---|---|---|"]
+        lines += [f"| {m} | {v:.3f} | [{result['kl_nats_ci'][m][0]:.3f}, {result['kl_nats_ci'][m][1]:.3f}] | "
+                  f"{100 * v / total:.0f}% |" for m, v in result["kl_nats"].items()]
     if "detect" in result:
-        lines += ["", "| modality | AdaMLI precision | AdaMLI recall |", "|---|---|---|"]
-        lines += [f"| {m} | {s['precision']:.2f} | {s['recall']:.2f} |" for m, s in result["detect"].items()]
+        lines += ["", f"| modality | AdaMLI precision ({spec.noise}) | AdaMLI recall | false imagination on clean demos |",
+                  "|---|---|---|---|"]
+        false = result.get("false_imagination", {})
+        lines += [f"| {m} | {s['precision']:.2f} | {s['recall']:.2f} | {100 * false.get(m, float('nan')):.1f}% |"
+                  for m, s in result["detect"].items()]
     return "\n".join(lines) + "\n"
