@@ -1,0 +1,33 @@
+"""The offline report gathers every analysis: KL per checkpoint once, detection per noise."""
+
+import json
+
+import pytest
+
+from nostra.workflows.offline_report import main
+
+
+def _analysis(root, name, noise, ckpt, kl):
+    d = root / name / "offline"
+    d.mkdir(parents=True)
+    d.joinpath("offline.json").write_text(json.dumps({
+        "noise": noise, "checkpoint": ckpt, "episodes": [["c", 0], ["c", 1], ["c", 2]],
+        "kl_nats": kl, "kl_nats_ci": {m: [v - 1, v + 1] for m, v in kl.items()},
+        "detect": {"cam": {"precision": 0.9, "recall": 0.5}, "all": {"precision": 0.8, "recall": 0.4}},
+        "false_imagination": {"cam": 0.05, "all": 0.02}, "action_mse": {}}))
+
+
+def test_report_lists_kl_once_per_checkpoint_and_detection_per_noise(tmp_path):
+    _analysis(tmp_path / "runs", "s0/mask", "mask", "a.ckpt", {"cam": 3.0, "pos": 1.0})
+    _analysis(tmp_path / "runs", "s0/proprio_stuck", "proprio_stuck", "a.ckpt", {"cam": 3.0, "pos": 1.0})
+    main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out")])
+    text = (tmp_path / "out/offline.md").read_text()
+    assert text.count("`a.ckpt` (3 episodes)") == 1
+    assert "| cam | 3.00 | [2.00, 4.00] | 75% |" in text and "| pos | 1.00 | [0.00, 2.00] | 25% |" in text
+    assert "`s0/mask`: noise `mask`" in text and "`s0/proprio_stuck`: noise `proprio_stuck`" in text
+    assert "| cam | 0.90 | 0.50 | 5.0% |" in text
+
+
+def test_no_analysis_fails_saying_how_to_make_one(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no offline.json under .*evaluate.rollouts=false"):
+        main(["--analyses", str(tmp_path), "--out", str(tmp_path / "out")])
