@@ -13,7 +13,8 @@ NOISES=${NOISES:-mask proprio_zero proprio_stuck}
 RUNS=data/runs/cpu
 ROOT=$RUNS/offline/$TASK
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
-WINDOWS=$(python -c "from nostra.sim.tasks import get_task; print([list(w) for w in get_task('$TASK').noise_windows])" | tr -d ' ')
+# the task config's windows, as the rollouts use them (nostra evaluate: task.noise_windows)
+WINDOWS=$(python -c "import yaml; print(yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows'])" | tr -d ' ')
 for seed in $SEEDS; do
   for noise in $NOISES; do
     out=$ROOT/s$seed/$noise

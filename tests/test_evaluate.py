@@ -138,3 +138,5 @@ def test_offline_analysis(tmp_path, ckpts):
     assert (tmp_path / "off/kl_episode.png").is_file() and "AdaMLI precision" in (tmp_path / "off/offline.md").read_text()
     with pytest.raises(ValueError, match="needs the simulator"):
         analyse(OfflineSpec(c["nostra"], str(s.path), [("t", 0)], noise="cam_jitter"))
+    with pytest.raises(ValueError, match=r"noise windows \[\[500, 600\]\] cover no step of the episodes"):
+        analyse(OfflineSpec(c["nostra"], str(s.path), [("t", 0)], noise="mask", windows=[[500, 600]]))

@@ -66,6 +66,10 @@ def analyse(spec: OfflineSpec) -> dict:
     if not spec.episodes:
         raise ValueError("no held-out episodes to analyse")
     store, out = Store(spec.store), Path(spec.out_dir)
+    lengths = [len(store.episode(c, e, ["actions"])["actions"]) for c, e in spec.episodes]
+    if not any(NoiseSchedule(spec.noise, _windows(spec, n), spec.noise_params).mask(n).any() for n in lengths):
+        raise ValueError(f"noise windows {spec.windows or 'middle third'} cover no step of the episodes "
+                         f"(lengths {min(lengths)}-{max(lengths)}): nothing would be corrupted")
     out.mkdir(parents=True, exist_ok=True)
     closed = load_runner(spec.checkpoint)
     names = closed.modality_names
