@@ -13,8 +13,9 @@ def _analysis(root, name, noise, ckpt, kl):
     d.joinpath("offline.json").write_text(json.dumps({
         "noise": noise, "checkpoint": ckpt, "episodes": [["c", 0], ["c", 1], ["c", 2]],
         "kl_nats": kl, "kl_nats_ci": {m: [v - 1, v + 1] for m, v in kl.items()},
-        "detect": {"cam": {"precision": 0.9, "recall": 0.5}, "all": {"precision": 0.8, "recall": 0.4}},
-        "false_imagination": {"cam": 0.05, "all": 0.02}, "action_mse": {}}))
+        "detect": {"agentview_image": {"precision": 0.9, "recall": 0.5}, "robot0_eef_pos": {"precision": 0.0, "recall": 1.0},
+                   "all": {"precision": 0.8, "recall": 0.4}},
+        "false_imagination": {"agentview_image": 0.05, "robot0_eef_pos": 0.01, "all": 0.02}, "action_mse": {}}))
 
 
 def test_report_lists_kl_once_per_checkpoint_and_detection_per_noise(tmp_path):
@@ -25,7 +26,9 @@ def test_report_lists_kl_once_per_checkpoint_and_detection_per_noise(tmp_path):
     assert text.count("`a.ckpt` (3 episodes)") == 1
     assert "| cam | 3.00 | [2.00, 4.00] | 75% |" in text and "| pos | 1.00 | [0.00, 2.00] | 25% |" in text
     assert "`s0/mask`: noise `mask`" in text and "`s0/proprio_stuck`: noise `proprio_stuck`" in text
-    assert "| cam | 0.90 | 0.50 | 5.0% |" in text
+    assert text.count("| agentview_image | 0.90 | 0.50 | 5.0% |") == 1  # mask: the cameras are noised
+    assert "| robot0_eef_pos | – (not noised) | – (not noised) | 1.0% |" in text  # nothing to detect under mask
+    assert "| robot0_eef_pos | 0.00 | 1.00 | 1.0% |" in text  # proprio_stuck corrupts it
 
 
 def test_no_analysis_fails_saying_how_to_make_one(tmp_path):

@@ -41,13 +41,23 @@ def kl_table(analyses: list[dict]) -> pd.DataFrame:
 
 
 def detection_table(analyses: list[dict]) -> pd.DataFrame:
+    """Precision and recall where the noise corrupts the modality (elsewhere there is nothing to
+    detect: only the false imagination counts)."""
+    from nostra.noise import NoiseSchedule
+
     rows = []
     for a in analyses:
-        false = a.get("false_imagination", {})
+        false, noised = a.get("false_imagination", {}), NoiseSchedule(a["noise"], [(1, 2)]).keys
         for m, s in a.get("detect", {}).items():
+            hit = m == "all" or m in noised
             rows.append({"analysis": a["name"], "noise": a["noise"], "checkpoint": a["checkpoint"], "modality": m,
-                         "precision": s["precision"], "recall": s["recall"], "false_imagination": false.get(m)})
+                         "noised": hit, "precision": s["precision"] if hit else None,
+                         "recall": s["recall"] if hit else None, "false_imagination": false.get(m)})
     return pd.DataFrame(rows)
+
+
+def _score(x) -> str:
+    return "– (not noised)" if pd.isna(x) else f"{x:.2f}"
 
 
 def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str) -> str:
@@ -66,7 +76,7 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str) -> str:
     for (name, noise), g in detect.groupby(["analysis", "noise"], sort=False):
         lines += [f"`{name}`: noise `{noise}`", "", "| modality | precision | recall | false imagination (clean) |",
                   "|---|---|---|---|"]
-        lines += [f"| {r.modality} | {r.precision:.2f} | {r.recall:.2f} | "
+        lines += [f"| {r.modality} | {_score(r.precision)} | {_score(r.recall)} | "
                   f"{'' if pd.isna(r.false_imagination) else f'{100 * r.false_imagination:.1f}%'} |"
                   for r in g.itertuples()]
         lines.append("")
