@@ -11,6 +11,7 @@ lists them with the counts."""
 from __future__ import annotations
 
 import argparse
+import functools
 from dataclasses import asdict
 from pathlib import Path
 
@@ -34,6 +35,7 @@ def match(config: ModelConfig, target: int, modalities, knob: str, hi: int = 409
     (counts grow with the width, so a bisection finds it)."""
     net = asdict(config.net)
 
+    @functools.cache  # each count builds a network
     def at(width: int) -> int:
         return count(config.policy, {**net, knob: width}, modalities)
 
