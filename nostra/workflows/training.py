@@ -51,6 +51,9 @@ class TrainSpec:
                       "rollout_env": env and RolloutEnv(**env)})
 
     def __post_init__(self):
+        # data.weights=null reaches the typed config as None (an interpolation is not validated);
+        # {} keeps the spec's JSON (DDP ranks) within TrainConfig's types
+        self.train.weights = dict(self.train.weights or {})
         if self.train.obs_keys is None:  # every modality the simulator renders
             self.train.obs_keys = list(sim_observations().names)
 
