@@ -109,3 +109,15 @@ def test_a_wrong_windows_override_fails_with_a_hint(monkeypatch, capsys, bad, me
     with pytest.raises(SystemExit):
         _evaluate_cfg(monkeypatch, bad)
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "conf/task").glob("*.yaml")), ids=lambda p: p.stem)
+def test_task_configs_name_registered_tasks_with_their_windows(path):
+    """A task config's noise_windows are its registry entry's, which the offline analysis and the
+    in-training rollouts read: two different values once gave windows past LiftD1's episodes."""
+    from nostra.sim.tasks import get_task
+
+    cfg = OmegaConf.load(path)
+    spec = get_task(cfg.name)
+    if "noise_windows" in cfg:
+        assert [tuple(w) for w in cfg.noise_windows] == [tuple(w) for w in spec.noise_windows], path
