@@ -21,6 +21,7 @@ def _analysis(root, name, noise, ckpt, kl):
 def test_report_lists_kl_once_per_checkpoint_and_detection_per_noise(tmp_path):
     _analysis(tmp_path / "runs", "s0/mask", "mask", "a.ckpt", {"cam": 3.0, "pos": 1.0})
     _analysis(tmp_path / "runs", "s0/proprio_stuck", "proprio_stuck", "a.ckpt", {"cam": 3.0, "pos": 1.0})
+    (tmp_path / "runs/s0/mask/offline/kl_episode.png").write_bytes(b"png")  # only the mask analysis drew one
     main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out")])
     text = (tmp_path / "out/offline.md").read_text()
     assert text.count("`a.ckpt` (3 episodes)") == 1
@@ -29,6 +30,8 @@ def test_report_lists_kl_once_per_checkpoint_and_detection_per_noise(tmp_path):
     assert text.count("| agentview_image | 0.90 | 0.50 | 5.0% |") == 1  # mask: the cameras are noised
     assert "| robot0_eef_pos | – (not noised) | – (not noised) | 1.0% |" in text  # nothing to detect under mask
     assert "| robot0_eef_pos | 0.00 | 1.00 | 1.0% |" in text  # proprio_stuck corrupts it
+    assert (tmp_path / "out/kl_episode-s0-mask.png").read_bytes() == b"png"
+    assert "![s0/mask](kl_episode-s0-mask.png)" in text and "proprio_stuck.png" not in text
 
 
 def test_no_analysis_fails_saying_how_to_make_one(tmp_path):

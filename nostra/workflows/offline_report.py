@@ -1,7 +1,8 @@
 """Table 3 and AdaMLI's detection at a profile, from offline analyses (`nostra evaluate
 evaluate.rollouts=false`, each writing offline.json): per-modality KL on the clean held-out demos
 with its interval and share, per analysed checkpoint; AdaMLI's per-modality precision and recall
-per noise, and its false imagination on the clean demos.
+per noise, and its false imagination on the clean demos; each analysis's one-episode KL figure
+(Figure 5: per-modality KL with the noise windows shaded and the imagined steps marked).
 
     python -m nostra.workflows.offline_report --analyses data/runs/cpu/offline/liftd1 --out reports/cpu/liftd1/offline
 
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 from pathlib import Path
 
 import pandas as pd
@@ -21,8 +23,18 @@ def load(root: Path) -> list[dict]:
     found = sorted(root.rglob("offline.json"))
     if not found:
         raise FileNotFoundError(f"no offline.json under {root}: run `nostra evaluate evaluate.rollouts=false ...` first")
-    return [{"name": p.parent.relative_to(root).as_posix().removesuffix("/offline"), **json.loads(p.read_text())}
-            for p in found]
+    return [{"name": p.parent.relative_to(root).as_posix().removesuffix("/offline"), **json.loads(p.read_text()),
+             "figure": p.parent / "kl_episode.png"} for p in found]
+
+
+def copy_figures(analyses: list[dict], out: Path) -> dict[str, str]:
+    """Each analysis's kl_episode.png into ``out`` as kl_episode-<name>.png: analysis name -> file name."""
+    copied = {}
+    for a in analyses:
+        if a["figure"].is_file():
+            copied[a["name"]] = f"kl_episode-{a['name'].replace('/', '-')}.png"
+            shutil.copyfile(a["figure"], out / copied[a["name"]])
+    return copied
 
 
 def kl_table(analyses: list[dict]) -> pd.DataFrame:
@@ -60,7 +72,7 @@ def _score(x) -> str:
     return "– (not noised)" if pd.isna(x) else f"{x:.2f}"
 
 
-def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str) -> str:
+def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict[str, str] | None = None) -> str:
     lines = ["# Where the nats go, and what AdaMLI detects (offline, held-out demos)", "", f"`{command}`", "",
              "## Per-modality KL on the clean held-out demos (Table 3)", "",
              "Mean KL per step in nats, 95% t-interval over the held-out episodes, share of the total.", ""]
@@ -80,6 +92,10 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str) -> str:
                   f"{'' if pd.isna(r.false_imagination) else f'{100 * r.false_imagination:.1f}%'} |"
                   for r in g.itertuples()]
         lines.append("")
+    if figures:
+        lines += ["## Per-modality KL over one held-out episode (Figure 5)", "",
+                  "Noise windows shaded, the steps AdaMLI imagines marked above the curves.", ""]
+        lines += [f"`{name}`\n\n![{name}]({f})\n" for name, f in figures.items()]
     return "\n".join(lines)
 
 
@@ -95,7 +111,8 @@ def main(argv: list[str] | None = None) -> None:
     kl.to_csv(args.out / "kl.csv", index=False)
     detect.to_csv(args.out / "detection.csv", index=False)
     command = args.command or f"python -m nostra.workflows.offline_report --analyses {args.analyses} --out {args.out}"
-    (args.out / "offline.md").write_text(markdown(kl, detect, command))
+    figures = copy_figures(analyses, args.out)
+    (args.out / "offline.md").write_text(markdown(kl, detect, command, figures))
     print(args.out / "offline.md")
 
 
