@@ -37,3 +37,12 @@ def test_report_lists_kl_once_per_checkpoint_and_detection_per_noise(tmp_path):
 def test_no_analysis_fails_saying_how_to_make_one(tmp_path):
     with pytest.raises(FileNotFoundError, match="no offline.json under .*evaluate.rollouts=false"):
         main(["--analyses", str(tmp_path), "--out", str(tmp_path / "out")])
+
+
+def test_two_runs_show_each_modalitys_share_side_by_side(tmp_path):
+    _analysis(tmp_path / "runs", "s0/mask", "mask", "good.ckpt", {"agentview_image": 3.0, "pos": 1.0})
+    _analysis(tmp_path / "runs", "s0-occluded/mask", "mask", "occluded.ckpt", {"agentview_image": 1.0, "pos": 1.0})
+    main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out")])
+    text = (tmp_path / "out/offline.md").read_text()
+    assert "| modality | s0 | s0-occluded |" in text
+    assert "| agentview_image | 75% | 50% |" in text and "| pos | 25% | 50% |" in text

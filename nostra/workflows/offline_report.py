@@ -47,7 +47,8 @@ def kl_table(analyses: list[dict]) -> pd.DataFrame:
         total = sum(a["kl_nats"].values())
         for m, v in a["kl_nats"].items():
             lo, hi = a["kl_nats_ci"][m]
-            rows.append({"checkpoint": a["checkpoint"], "episodes": len(a["episodes"]), "modality": m,
+            rows.append({"run": a["name"].split("/")[0], "checkpoint": a["checkpoint"],
+                         "episodes": len(a["episodes"]), "modality": m,
                          "kl_nats": v, "ci_low": lo, "ci_high": hi, "share": v / total})
     return pd.DataFrame(rows)
 
@@ -81,6 +82,13 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
                   "|---|---|---|---|"]
         lines += [f"| {r.modality} | {r.kl_nats:.2f} | [{r.ci_low:.2f}, {r.ci_high:.2f}] | {100 * r.share:.0f}% |"
                   for r in g.itertuples()]
+        lines.append("")
+    if kl.run.nunique() > 1:  # e.g. the good and the occluded view (Table 3): each modality's share side by side
+        shares = kl.pivot_table(index="modality", columns="run", values="share", sort=False)
+        runs = list(shares.columns)
+        lines += ["Each modality's share of the KL per analysed run (folder under --analyses):", "",
+                  "| modality | " + " | ".join(runs) + " |", "|---" * (len(runs) + 1) + "|"]
+        lines += [f"| {m} | " + " | ".join(f"{100 * v:.0f}%" for v in row) + " |" for m, row in shares.iterrows()]
         lines.append("")
     lines += ["## AdaMLI detection per noise", "",
               "Per-step precision and recall of AdaMLI's imagination flags against the injected windows; false "
