@@ -203,6 +203,9 @@ class VariantConfig:
     checkpoint: str                  # the training run's policy.ckpt (evaluate.checkpoint picks best/last/step)
     mode: str = "closed"             # closed | oracle (MLI, LI) | adaptive (AdaMLI)
     rnn_horizon: int | None = None   # reset the recurrent state every this many steps; None: the policy's
+    # mode=adaptive: AdaMLI's thresholds, e.g. `...adamli={f_o: 10, k_o: 4}` (f_o, k_o, f_c, k_c, min_changes,
+    # warmup); None: the paper's. Any, not a dict: Hydra refuses new keys merged into a typed dict
+    adamli: Any = None
 
 
 @dataclass
@@ -215,6 +218,7 @@ class OfflineConfig:
     episodes: int = 8                # held-out demos (the training run's validation split)
     windows: list[list[int]] | None = None   # None: the middle third of each demo
     setting: str = "default"         # Table 3 column: the data the policy was trained on
+    adamli: Any = None               # AdaMLI's thresholds, as in VariantConfig; None: the paper's
 
 
 @dataclass

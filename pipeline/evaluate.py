@@ -13,9 +13,12 @@ def _rollouts(cfg, e) -> None:
     """e: the typed evaluate config (nostra.configs.EvaluateConfig)."""
     from nostra.workflows.evaluation import EvalSpec, Variant, evaluate
     from nostra.policies.checkpoint import select_checkpoint
+    from nostra.policies.imagination import AdaMLIConfig
 
-    variants = [Variant(name, select_checkpoint(v.checkpoint, e.checkpoint), v.mode, v.rnn_horizon)
+    variants = [Variant(name, select_checkpoint(v.checkpoint, e.checkpoint), v.mode, v.rnn_horizon, dict(v.adamli or {}))
                 for name, v in e.variants.items() if v]  # null: left out
+    for v in variants:  # a wrong threshold name fails here, not in every worker
+        AdaMLIConfig.from_dict(v.adamli)
     spec = EvalSpec(tasks=e.tasks, noises=e.noises, variants=variants, out_dir=e.out_dir,
                     episodes=e.episodes, seed=e.seed, horizon=e.horizon, windows=noise_windows(cfg),
                     noise_params=e.noise_params, workers=e.workers, image_size=e.image_size,
@@ -59,7 +62,7 @@ def _offline(cfg, e) -> None:
     spec = OfflineSpec(checkpoint=o.checkpoint, store=cfg.data.store, episodes=held_out[: o.episodes],
                        noise=o.noise, windows=o.windows,
                        out_dir=str(Path(e.out_dir) / "offline"), seed=cfg.seed,
-                       noise_params=e.noise_params)
+                       noise_params=e.noise_params, adamli=dict(o.adamli or {}))
     result = analyse(spec)
     tracker = Tracker(e.experiment, f"offline-{'-'.join(e.tasks)}", spec.out_dir,
                       {"checkpoint": o.checkpoint, "noise": o.noise, "episodes": len(spec.episodes),

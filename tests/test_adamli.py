@@ -59,3 +59,11 @@ def test_window_mask_and_scores():
     s = detection_scores(np.array([1, 1, 0, 0], bool), np.array([1, 0, 1, 0], bool))
     assert s == {"precision": 0.5, "recall": 0.5}
     assert KLSwitch().update(5.0) is False  # first value: nothing to compare with
+
+
+def test_thresholds_from_a_config_dict_are_cast_and_checked():
+    cfg = AdaMLIConfig.from_dict({"f_o": 10, "k_o": 4.0})
+    assert (cfg.f_o, cfg.k_o, cfg.f_c) == (10.0, 4, 3.0) and isinstance(cfg.k_o, int)
+    assert AdaMLIConfig.from_dict(None) == AdaMLIConfig() == AdaMLIConfig.from_dict({})
+    with pytest.raises(ValueError, match=r"unknown AdaMLI parameter\(s\) \['f0'\]; valid: f_o, k_o, f_c"):
+        AdaMLIConfig.from_dict({"f0": 1})

@@ -136,6 +136,14 @@ def test_offline_analysis(tmp_path, ckpts):
     saved = json.loads((tmp_path / "off/offline.json").read_text())
     assert saved["noise"] == "rgb" and saved["episodes"] == [["t", 0], ["t", 1]] and saved["kl_nats"] == result["kl_nats"]
     assert (tmp_path / "off/kl_episode.png").is_file() and "AdaMLI precision" in (tmp_path / "off/offline.md").read_text()
+    assert saved["adamli"]["f_o"] == 20.0 and saved["adamli"]["k_o"] == 10  # the paper's thresholds by default
+    # thresholds reach AdaMLI: a warm-up longer than the episodes leaves it nothing to imagine
+    late = analyse(OfflineSpec(c["nostra"], str(s.path), [("t", 0), ("t", 1)], noise="rgb", out_dir=str(tmp_path / "late"),
+                               progress=False, adamli={"warmup": 10_000, "f_o": 5}))
+    assert late["false_imagination"]["all"] == 0 and late["detect"]["all"]["recall"] == 0
+    assert json.loads((tmp_path / "late/offline.json").read_text())["adamli"]["warmup"] == 10_000
+    with pytest.raises(ValueError, match=r"unknown AdaMLI parameter\(s\) \['fo'\]; valid: f_o, k_o"):
+        analyse(OfflineSpec(c["nostra"], str(s.path), [("t", 0)], noise="rgb", adamli={"fo": 5}))
     with pytest.raises(ValueError, match="needs the simulator"):
         analyse(OfflineSpec(c["nostra"], str(s.path), [("t", 0)], noise="cam_jitter"))
     with pytest.raises(ValueError, match=r"noise windows \[\[500, 600\]\] cover no step of the episodes"):

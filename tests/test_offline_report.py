@@ -7,10 +7,10 @@ import pytest
 from nostra.workflows.offline_report import main
 
 
-def _analysis(root, name, noise, ckpt, kl):
+def _analysis(root, name, noise, ckpt, kl, **extra):
     d = root / name / "offline"
     d.mkdir(parents=True)
-    d.joinpath("offline.json").write_text(json.dumps({
+    d.joinpath("offline.json").write_text(json.dumps({**extra,
         "noise": noise, "checkpoint": ckpt, "episodes": [["c", 0], ["c", 1], ["c", 2]],
         "kl_nats": kl, "kl_nats_ci": {m: [v - 1, v + 1] for m, v in kl.items()},
         "detect": {"agentview_image": {"precision": 0.9, "recall": 0.5}, "robot0_eef_pos": {"precision": 0.0, "recall": 1.0},
@@ -46,3 +46,14 @@ def test_two_runs_show_each_modalitys_share_side_by_side(tmp_path):
     text = (tmp_path / "out/offline.md").read_text()
     assert "| modality | s0 | s0-occluded |" in text
     assert "| agentview_image | 75% | 50% |" in text and "| pos | 25% | 50% |" in text
+
+
+def test_analyses_that_differ_in_thresholds_make_a_sensitivity_table_and_figure(tmp_path):
+    for f_o in (5.0, 20.0):
+        _analysis(tmp_path / "runs", f"s0-fo{f_o:g}/mask", "mask", "a.ckpt", {"cam": 1.0},
+                  adamli={"f_o": f_o, "k_o": 10, "f_c": 3.0})
+    main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--no-figures"])
+    text = (tmp_path / "out/offline.md").read_text()
+    assert "| noise | f_o | precision | recall | false imagination |" in text  # only the varied threshold
+    assert "| mask | 5 | 0.80 | 0.40 | 2.0% |" in text and "| mask | 20 | 0.80 | 0.40 | 2.0% |" in text
+    assert (tmp_path / "out/adamli_sweep.png").stat().st_size > 1000 and "Figure 5" not in text

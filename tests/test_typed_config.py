@@ -123,6 +123,9 @@ def test_the_documented_evaluate_overrides_compose():
                        "evaluate.checkpoint=best", "evaluate.variants.nostra.rnn_horizon=10").evaluate, "evaluate")
     assert e.windows == {"Lift": [[30, 60]]} and e.variants["lstm"] is None and e.checkpoint == "best"
     assert e.variants["nostra"].rnn_horizon == 10 and e.variants["nostra_mli"].mode == "oracle"
+    e = typed(_compose("evaluate.variants.nostra_adamli.adamli={f_o: 10, k_o: 4}", "evaluate.offline.adamli={f_c: 1.5}"
+                       ).evaluate, "evaluate")
+    assert e.variants["nostra_adamli"].adamli == {"f_o": 10, "k_o": 4} and e.offline.adamli == {"f_c": 1.5}
 
 
 def _evaluate_cli(monkeypatch, capsys, *overrides: str) -> str:

@@ -31,6 +31,7 @@ stays imagined after the noise ends.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from dataclasses import dataclass
 
@@ -46,6 +47,17 @@ class AdaMLIConfig:
     min_changes: int = 5
     warmup: int = 10
     eps: float = 1e-3  # nats: a thousandth of a nat is no information change
+
+    @classmethod
+    def from_dict(cls, params: dict | None) -> "AdaMLIConfig":
+        """The thresholds a config gives (evaluate.variants.<id>.adamli, evaluate.offline.adamli);
+        an unknown key fails naming the valid ones; the rest keep the paper's values."""
+        fields = {f.name: f.type for f in dataclasses.fields(cls)}
+        unknown = sorted(set(params or {}) - set(fields))
+        if unknown:
+            raise ValueError(f"unknown AdaMLI parameter(s) {unknown}; valid: {', '.join(fields)}")
+        cast = {"int": int, "float": float, int: int, float: float}  # annotations may be strings
+        return cls(**{k: cast[fields[k]](v) for k, v in (params or {}).items()})
 
 
 class KLSwitch:

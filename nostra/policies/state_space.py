@@ -97,7 +97,7 @@ class StateSpaceRunner(Runner):
 
     def __init__(self, net: StateSpaceNet, device: str = "cpu", adaptive: bool = False,
                  adamli: AdaMLIConfig | dict | None = None, rnn_horizon: int | None = None):
-        cfg = adamli if isinstance(adamli, AdaMLIConfig) else AdaMLIConfig(**(adamli or {}))
+        cfg = adamli if isinstance(adamli, AdaMLIConfig) else AdaMLIConfig.from_dict(adamli)
         self.detector = AdaMLI(list(net.groups), cfg) if adaptive else None
         self.rnn_horizon = net.rnn_horizon if rnn_horizon is None else int(rnn_horizon)
         super().__init__(net, device)

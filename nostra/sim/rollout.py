@@ -30,6 +30,7 @@ class EpisodeJob:
     image_size: int | None = None   # None: the checkpoint's (a value that disagrees with it fails the episode)
     video_path: str | None = None
     rnn_horizon: int | None = None  # the runner's state reset period (None: the checkpoint's)
+    adamli: tuple = ()              # mode=adaptive: AdaMLI's thresholds as sorted (name, value) pairs
 
 
 @dataclass
@@ -110,7 +111,7 @@ def work(job: EpisodeJob) -> EpisodeResult:
     """Run one job in this process; any error becomes a failed episode with its reason."""
     size = None
     try:
-        runner = _runner(job.checkpoint, job.mode, job.rnn_horizon)
+        runner = _runner(job.checkpoint, job.mode, job.rnn_horizon, job.adamli)
         size = render_size(runner.net.modalities, job.image_size)
         env = _env(job.task, size)
         return run_episode(env, runner, job)
@@ -129,12 +130,12 @@ def _env(task: str, image_size: int):
     return _ENVS[key]
 
 
-def _runner(checkpoint: str, mode: str, rnn_horizon: int | None = None):
+def _runner(checkpoint: str, mode: str, rnn_horizon: int | None = None, adamli: tuple = ()):
     from nostra.policies.checkpoint import load_runner
 
-    key = (checkpoint, mode, rnn_horizon)
+    key = (checkpoint, mode, rnn_horizon, adamli)
     if key not in _RUNNERS:
-        kwargs = {"adaptive": True} if mode == "adaptive" else {}
+        kwargs = {"adaptive": True, "adamli": dict(adamli)} if mode == "adaptive" else {}
         if rnn_horizon is not None:
             kwargs["rnn_horizon"] = rnn_horizon
         _RUNNERS[key] = load_runner(checkpoint, **kwargs)

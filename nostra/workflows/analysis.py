@@ -11,6 +11,7 @@ injected into stored episodes and each policy variant is stepped through them.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +22,7 @@ from tqdm import tqdm
 from nostra import episode
 from nostra.episode import Episode, RecordedSource, oracle_keys
 from nostra.modality import render_size
-from nostra.policies.imagination import detection_scores
+from nostra.policies.imagination import AdaMLIConfig, detection_scores
 from nostra.noise import NoiseSchedule, check_noise
 
 # noises that act on stored observations (camera jitter and texture swaps need the simulator)
@@ -39,6 +40,7 @@ class OfflineSpec:
     seed: int = 0
     progress: bool = True
     noise_params: dict = field(default_factory=dict)
+    adamli: dict = field(default_factory=dict)   # AdaMLI's thresholds (empty: the paper's)
 
 
 def _windows(spec: OfflineSpec, length: int) -> list[tuple[int, int]]:
@@ -77,7 +79,7 @@ def analyse(spec: OfflineSpec) -> dict:
     variants = {"closed": closed}
     if closed.can_imagine:
         variants["oracle"] = closed
-        variants["adaptive"] = load_runner(spec.checkpoint, adaptive=True)
+        variants["adaptive"] = load_runner(spec.checkpoint, adaptive=True, adamli=spec.adamli)
     errors = {v: [] for v in ["clean", *variants]}
     kl_clean = {m: [] for m in closed.net.groups} if closed.can_imagine else {}
     kl_episodes = {m: [] for m in kl_clean}           # each held-out episode's mean: the intervals' samples
@@ -125,7 +127,8 @@ def analyse(spec: OfflineSpec) -> dict:
                                                    np.concatenate([truth[m] for m in names]))
     (out / "offline.md").write_text(markdown(result, spec))
     (out / "offline.json").write_text(json.dumps({"noise": spec.noise, "checkpoint": spec.checkpoint,
-                                                  "episodes": [list(e) for e in spec.episodes], **result}, indent=1))
+                                                  "episodes": [list(e) for e in spec.episodes],
+                                                  "adamli": dataclasses.asdict(AdaMLIConfig.from_dict(spec.adamli)), **result}, indent=1))
     return result
 
 

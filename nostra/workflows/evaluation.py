@@ -29,6 +29,7 @@ class Variant:
     checkpoint: str
     mode: str = "closed"  # closed | oracle (MLI / LI knowing the window) | adaptive (AdaMLI)
     rnn_horizon: int | None = None  # override the checkpoint's state reset period at rollout (0: never)
+    adamli: dict = field(default_factory=dict)  # mode=adaptive: AdaMLI's thresholds (empty: the paper's)
 
     @property
     def label(self) -> str:
@@ -121,7 +122,7 @@ def jobs_of(spec: EvalSpec) -> list[EpisodeJob]:
                              if i < spec.videos_per_cell else None)
                     jobs.append(EpisodeJob(t.name, noise, v.name, v.checkpoint, v.mode, spec.seed + i,
                                            spec.horizon or t.horizon, windows, dict(spec.noise_params),
-                                           spec.image_size, video, v.rnn_horizon))
+                                           spec.image_size, video, v.rnn_horizon, tuple(sorted(v.adamli.items()))))
     return jobs
 
 

@@ -69,11 +69,47 @@ def detection_table(analyses: list[dict]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def sweep_table(analyses: list[dict]) -> pd.DataFrame:
+    """One row per analysis with AdaMLI's thresholds and its detection over every modality: the
+    threshold sensitivity when the analyses differ in their thresholds (empty otherwise)."""
+    rows = [{"analysis": a["name"], "noise": a["noise"], **a["adamli"], "precision": a["detect"]["all"]["precision"],
+             "recall": a["detect"]["all"]["recall"], "false_imagination": a["false_imagination"]["all"]}
+            for a in analyses if "adamli" in a and "detect" in a]
+    params = {k for r in rows for k in r} - {"analysis", "noise", "precision", "recall", "false_imagination"}
+    varied = [k for k in sorted(params) if len({r.get(k) for r in rows}) > 1]
+    if not varied:
+        return pd.DataFrame()
+    return pd.DataFrame(rows).sort_values(["noise", *varied]).reset_index(drop=True)[
+        ["analysis", "noise", *varied, "precision", "recall", "false_imagination"]]
+
+
+def sweep_figure(sweep: pd.DataFrame, path: Path) -> None:
+    """Precision, recall and false imagination against f_o, one line per f_c (per noise)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x, line = ("f_o", "f_c") if {"f_o", "f_c"} <= set(sweep.columns) else (sweep.columns[2], None)
+    metrics = ["precision", "recall", "false_imagination"]
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.4), sharex=True)
+    for ax, metric in zip(axes, metrics):
+        for (noise, key), g in sweep.groupby(["noise", line] if line else ["noise", "noise"]):
+            g = g.sort_values(x)
+            ax.plot(g[x], g[metric], marker="o", label=f"{noise}, {line} = {key}" if line else noise)
+        ax.set_xscale("log"), ax.set_xlabel(x), ax.set_title(metric.replace("_", " ")), ax.set_ylim(0, 1)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def _score(x) -> str:
     return "– (not noised)" if pd.isna(x) else f"{x:.2f}"
 
 
-def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict[str, str] | None = None) -> str:
+def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict[str, str] | None = None,
+             sweep: pd.DataFrame | None = None) -> str:
     lines = ["# Where the nats go, and what AdaMLI detects (offline, held-out demos)", "", f"`{command}`", "",
              "## Per-modality KL on the clean held-out demos (Table 3)", "",
              "Mean KL per step in nats, 95% t-interval over the held-out episodes, share of the total.", ""]
@@ -100,6 +136,16 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
                   f"{'' if pd.isna(r.false_imagination) else f'{100 * r.false_imagination:.1f}%'} |"
                   for r in g.itertuples()]
         lines.append("")
+    if sweep is not None and len(sweep):
+        varied = [c for c in sweep.columns if c not in ("analysis", "noise", "precision", "recall", "false_imagination")]
+        lines += ["## AdaMLI's thresholds (sensitivity)", "",
+                  "Detection over every modality per threshold setting (the others at the paper's values); "
+                  "false imagination on the clean demos. `adamli_sweep.png` plots it.", "",
+                  "| noise | " + " | ".join(varied) + " | precision | recall | false imagination |",
+                  "|---" * (len(varied) + 4) + "|"]
+        lines += ["| " + " | ".join([r.noise, *(f"{getattr(r, k):g}" for k in varied)]) +
+                  f" | {r.precision:.2f} | {r.recall:.2f} | {100 * r.false_imagination:.1f}% |" for r in sweep.itertuples()]
+        lines += ["", "![AdaMLI threshold sensitivity](adamli_sweep.png)", ""]
     if figures:
         lines += ["## Per-modality KL over one held-out episode (Figure 5)", "",
                   "Noise windows shaded, the steps AdaMLI imagines marked above the curves.", ""]
@@ -112,6 +158,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--analyses", type=Path, required=True)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--command", default="")
+    ap.add_argument("--no-figures", action="store_true", help="leave out each analysis's one-episode figure")
     args = ap.parse_args(argv)
     analyses = load(args.analyses)
     kl, detect = kl_table(analyses), detection_table(analyses)
@@ -119,8 +166,11 @@ def main(argv: list[str] | None = None) -> None:
     kl.to_csv(args.out / "kl.csv", index=False)
     detect.to_csv(args.out / "detection.csv", index=False)
     command = args.command or f"python -m nostra.workflows.offline_report --analyses {args.analyses} --out {args.out}"
-    figures = copy_figures(analyses, args.out)
-    (args.out / "offline.md").write_text(markdown(kl, detect, command, figures))
+    figures, sweep = ({} if args.no_figures else copy_figures(analyses, args.out)), sweep_table(analyses)
+    if len(sweep):
+        sweep.to_csv(args.out / "adamli_sweep.csv", index=False)
+        sweep_figure(sweep, args.out / "adamli_sweep.png")
+    (args.out / "offline.md").write_text(markdown(kl, detect, command, figures, sweep))
     print(args.out / "offline.md")
 
 
