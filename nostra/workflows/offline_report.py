@@ -94,9 +94,9 @@ def sweep_figure(sweep: pd.DataFrame, path: Path) -> None:
     metrics = ["precision", "recall", "false_imagination"]
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.4), sharex=True)
     for ax, metric in zip(axes, metrics):
-        for (noise, key), g in sweep.groupby(["noise", line] if line else ["noise", "noise"]):
+        for key, g in sweep.groupby(["noise", line] if line else ["noise"]):
             g = g.sort_values(x)
-            ax.plot(g[x], g[metric], marker="o", label=f"{noise}, {line} = {key}" if line else noise)
+            ax.plot(g[x], g[metric], marker="o", label=f"{key[0]}, {line} = {key[1]:g}" if line else key[0])
         ax.set_xscale("log"), ax.set_xlabel(x), ax.set_title(metric.replace("_", " ")), ax.set_ylim(0, 1)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
