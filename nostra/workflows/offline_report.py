@@ -98,6 +98,7 @@ def sweep_figure(sweep: pd.DataFrame, path: Path) -> None:
             g = g.sort_values(x)
             ax.plot(g[x], g[metric], marker="o", label=f"{key[0]}, {line} = {key[1]:g}" if line else key[0])
         ax.set_xscale("log"), ax.set_xlabel(x), ax.set_title(metric.replace("_", " ")), ax.set_ylim(0, 1)
+        ax.minorticks_off(), ax.set_xticks(sorted(sweep[x].unique()), [f"{v:g}" for v in sorted(sweep[x].unique())])
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
