@@ -13,12 +13,9 @@ def _rollouts(cfg, e) -> None:
     """e: the typed evaluate config (nostra.configs.EvaluateConfig)."""
     from nostra.workflows.evaluation import EvalSpec, Variant, evaluate
     from nostra.policies.checkpoint import select_checkpoint
-    from nostra.policies.imagination import AdaMLIConfig
 
     variants = [Variant(name, select_checkpoint(v.checkpoint, e.checkpoint), v.mode, v.rnn_horizon, dict(v.adamli or {}))
                 for name, v in e.variants.items() if v]  # null: left out
-    for v in variants:  # a wrong threshold name fails here, not in every worker
-        AdaMLIConfig.from_dict(v.adamli)
     spec = EvalSpec(tasks=e.tasks, noises=e.noises, variants=variants, out_dir=e.out_dir,
                     episodes=e.episodes, seed=e.seed, horizon=e.horizon, windows=noise_windows(cfg),
                     noise_params=e.noise_params, workers=e.workers, image_size=e.image_size,

@@ -68,10 +68,11 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 
 
 def validate(spec: EvalSpec) -> None:
-    """Fail before any rollout: unknown task / noise / mode, bad windows or noise parameters, or a
-    policy the env cannot feed."""
+    """Fail before any rollout: unknown task / noise / mode, bad windows, noise parameters or AdaMLI
+    thresholds, or a policy the env cannot feed."""
     from nostra.policies import runner_class
     from nostra.policies.checkpoint import read_meta
+    from nostra.policies.imagination import AdaMLIConfig
     from nostra.sim.tasks import get_task
 
     for task in spec.tasks:
@@ -87,6 +88,10 @@ def validate(spec: EvalSpec) -> None:
     for v in spec.variants:
         if v.mode not in MODES:
             raise ValueError(f"variant {v.name!r}: unknown mode {v.mode!r}; valid modes: {', '.join(MODES)}")
+        try:
+            AdaMLIConfig.from_dict(v.adamli)
+        except ValueError as e:
+            raise ValueError(f"variant {v.name!r}: {e}") from None
         meta, _ = read_meta(v.checkpoint)
         runner = runner_class(meta["policy"])
         if v.mode != "closed" and not runner.can_imagine:
