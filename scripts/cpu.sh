@@ -46,17 +46,23 @@ for seed in $SEEDS; do
   done
 done
 
-# The cells: clean with the best and the last checkpoint, the blind control with the best. NOSTRA's
-# MLI variant runs only blind (with no noise it imagines nothing: it is the closed-loop policy) and
-# closed-loop NOSTRA only clean (blind, it would read black frames).
+# The cells: clean with the best and the last checkpoint, the blind control with the best. The
+# imagining variants (NOSTRA + MLI, BC-RSSM + LI) run only blind (with no noise they imagine nothing:
+# they are the closed-loop policy) and the closed-loop NOSTRA and BC-RSSM only clean.
 variants() {  # $1 = the noise; prints the overrides that drop the variants this cell does not need
-  local drop="diffusion rssm rssm_li nostra_adamli"
-  case " $MODELS " in *" lstm "*) ;; *) drop="$drop lstm" ;; esac
-  case " $MODELS " in
-    *" nostra "*) if [ "$1" = none ]; then drop="$drop nostra_mli"; else drop="$drop nostra"; fi ;;
-    *) drop="$drop nostra nostra_mli" ;;
-  esac
-  for v in $drop; do printf 'evaluate.variants.%s=null ' "$v"; done
+  local keep="" v m
+  for m in $MODELS; do
+    case "$m:$1" in
+      nostra:none) keep="$keep nostra" ;;
+      nostra:*) keep="$keep nostra_mli" ;;
+      rssm:none) keep="$keep rssm" ;;
+      rssm:*) keep="$keep rssm_li" ;;
+      *) keep="$keep $m" ;;  # lstm, diffusion: black frames when blind
+    esac
+  done
+  for v in lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli; do
+    case " $keep " in *" $v "*) ;; *) printf 'evaluate.variants.%s=null ' "$v" ;; esac
+  done
 }
 for seed in $SEEDS; do
   for c in best:none best:blind last:none; do
