@@ -35,6 +35,10 @@ class EncoderConfig:
     aug_pixels: int = 8
     keypoints: int = 32
 
+    def min_window(self) -> int:
+        """The shortest training window (steps) the policy's loss accepts."""
+        return 1
+
 
 @dataclass
 class LSTMNetConfig(EncoderConfig):
@@ -80,6 +84,9 @@ class DiffusionNetConfig(EncoderConfig):
     train_steps: int = 100
     sampler: str = "ddpm"            # ddpm | ddim; the runner may override (e.g. ddim with 10 steps)
     inference_steps: int | None = None   # None: train_steps
+
+    def min_window(self) -> int:
+        return self.horizon  # the loss denoises a whole horizon of actions
 
 
 @dataclass

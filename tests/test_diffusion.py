@@ -155,3 +155,14 @@ def test_registered_and_config_fits():
     assert (cfg.net.horizon, cfg.net.n_obs_steps, cfg.net.n_action_steps, cfg.net.train_steps) == (16, 2, 8, 100)
     assert (cfg.optim.lr, cfg.optim.betas, cfg.optim.weight_decay, cfg.optim.lr_scheduler) == (1e-4, [0.95, 0.999],
                                                                                               1e-6, "cosine")
+
+
+def test_training_windows_cover_the_prediction_horizon():
+    """A profile's data.seq_len shorter than the horizon (the cpu profile's 10) is raised to it for
+    Diffusion Policy only; a longer one is kept."""
+    from nostra.configs import LSTMConfig
+    from nostra.workflows.training import window_length
+
+    assert window_length(SimpleNamespace(seq_len=10, model=DiffusionConfig())) == 16
+    assert window_length(SimpleNamespace(seq_len=20, model=DiffusionConfig())) == 20
+    assert window_length(SimpleNamespace(seq_len=10, model=LSTMConfig())) == 10

@@ -162,6 +162,16 @@ class _ResumedStream(L.Callback):
             self.sampler.resumed_at = int(trainer.global_step)
 
 
+def window_length(spec: TrainSpec) -> int:
+    """data.seq_len, raised to the policy's shortest window (Diffusion Policy: its prediction horizon,
+    as diffusion_policy sizes its windows) so one profile serves every policy."""
+    need = spec.model.net.min_window()
+    if spec.seq_len < need:
+        print(f"training windows of {need} steps (data.seq_len={spec.seq_len} is shorter than "
+              f"{spec.model.policy}'s horizon)")
+    return max(spec.seq_len, need)
+
+
 def train(spec: TrainSpec) -> dict:
     """Run one training flow; returns paths and the tracking summary."""
     t, policy = spec.train, spec.model.policy
@@ -176,13 +186,14 @@ def train(spec: TrainSpec) -> dict:
     store = Store(spec.store)
     train_eps, val_eps, weights, manifest_hash = _episodes(spec, store)
     collections = weights if weights is not None else t.collections
-    loader = make_loader(store, collections, t.obs_keys, spec.seq_len, spec.batch_size, spec.num_workers,
+    seq_len = window_length(spec)
+    loader = make_loader(store, collections, t.obs_keys, seq_len, spec.batch_size, spec.num_workers,
                          episodes=train_eps, num_samples=t.max_steps * spec.batch_size, seed=spec.seed)
     ds = loader.dataset
     module = _module(spec, ds.modalities(), ds.action_dim, ds.stats())
     val_loader = None
     if val_eps:
-        val_loader = make_loader(store, sorted({c for c, _ in val_eps}), t.obs_keys, spec.seq_len, spec.batch_size,
+        val_loader = make_loader(store, sorted({c for c, _ in val_eps}), t.obs_keys, seq_len, spec.batch_size,
                                  0, episodes=val_eps, shuffle=False)
 
     callbacks = [ModelCheckpoint(dirpath=out / "checkpoints", save_last=True, every_n_train_steps=t.val_every,
