@@ -299,3 +299,17 @@ def test_editing_nostra_data_changes_a_dep_hash_of_every_train_and_evaluate_stag
                                                                          "retrieve")}
     assert {a for a in cmds if a.startswith(("pretrain", "finetune", "cotrain", "evaluate"))} <= expected
     assert changed == expected, (sorted(expected - changed), sorted(changed - expected))
+
+
+def test_dvc_lock_is_local_state_that_dvc_accepts():
+    """dvc.lock is git-ignored (a run of `make demo` leaves git status clean), and dvc still reads
+    it: without core.no_scm dvc refuses a git-ignored lock (FileIsGitIgnored) on every command."""
+    ignored = subprocess.run(["git", "check-ignore", "-q", "dvc.lock"], cwd=ROOT)
+    assert ignored.returncode == 0, "dvc.lock is not git-ignored"
+    from dvc.dvcfile import Lockfile
+
+    repo = Repo(str(ROOT))
+    try:
+        Lockfile(repo, str(ROOT / "dvc.lock")).load()  # raises FileIsGitIgnored under git integration
+    finally:
+        repo.close()

@@ -1,5 +1,5 @@
 """Generation and ingest are bit-reproducible: the same seeds, code and machine give the same bytes,
-so `dvc repro` on a fresh clone reproduces the md5s of dvc.lock (no creation times, no wall-clock
+so `dvc repro` of the same seeds and code reproduces the md5s its dvc.lock records (no creation times, no wall-clock
 values, no absolute install paths in the outputs)."""
 
 import hashlib
