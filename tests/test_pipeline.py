@@ -1,6 +1,6 @@
-"""The dvc pipeline end to end on the micro `ci` profile: `dvc repro` runs every stage and writes
-the report; a second `dvc repro` with nothing changed does nothing; a changed parameter marks
-exactly the stages that read it."""
+"""The dvc pipeline end to end on the micro `ci` profile, in a git checkout of the tracked files:
+`dvc repro` runs every stage, writes the report and leaves `git status` clean; a second `dvc repro`
+with nothing changed does nothing; a changed parameter marks exactly the stages that read it."""
 
 import os
 import shutil
@@ -26,13 +26,20 @@ def project(tmp_path_factory):
     root = tmp_path_factory.mktemp("pipeline")
     for d in ("nostra", "retrieval", "pipeline", "conf"):
         shutil.copytree(ROOT / d, root / d, ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copy(ROOT / "dvc.yaml", root / "dvc.yaml")
+    for f in ("dvc.yaml", ".gitignore", ".dvcignore", ".dvc/config", ".dvc/.gitignore"):
+        (root / f).parent.mkdir(exist_ok=True)
+        shutil.copy(ROOT / f, root / f)
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
     params.update(profile="ci", num_demos=2, budget=2, library_demos={"lift": 3, "stack": 2, "pickplacecan": 2})
     (root / "params.yaml").write_text(yaml.safe_dump(params))
-    assert _dvc(root, "init", "--no-scm", "-q").returncode == 0
-    _dvc(root, "config", "core.analytics", "false")
+    _git(root, "init", "-q")
+    _git(root, "add", "-A")
+    _git(root, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "tracked files")
     return root
+
+
+def _git(cwd, *args) -> str:
+    return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, check=True).stdout
 
 
 # ~30 stage processes, each paying ~8 s of imports (lightning pulls torchmetrics and transformers):
@@ -45,6 +52,7 @@ def test_repro_then_nothing_then_only_what_changed(project):
     assert "Table 1" in index and "Table 5" in index
     assert (project / "data/runs/evaluate/robustness/success.md").is_file()
     assert (project / "data/runs/manifests/all.json").is_file()
+    assert _git(project, "status", "--porcelain") == "", "dvc repro left files git would track"
 
     again = _dvc(project, "repro")
     assert again.returncode == 0 and "Running stage" not in again.stdout, again.stdout[-2000:]
