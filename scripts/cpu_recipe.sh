@@ -44,8 +44,8 @@ train() {  # $1 = run name, $2 = collection, rest: extra overrides
 }
 
 reuse() {  # $1 = out name, $2 = variant: its clean rollouts from `make cpu`'s best-checkpoint evaluation (not re-run)
-  local from=$RUNS/evaluate/$TASK/s0/best
-  [ -f "$from/success.csv" ] || { echo "run make cpu first: $from is missing" >&2; exit 1; }
+  local from=$RUNS/evaluate/$TASK/s0/best/none  # where scripts/cpu.sh writes its clean cell
+  [ -f "$from/success.csv" ] || { echo "run make cpu first: $from/success.csv is missing" >&2; exit 1; }
   mkdir -p "$EV/$1/records/$NAME/none"
   cp "$from"/records/"$NAME"/none/"$2"_seed*.npz "$EV/$1/records/$NAME/none/"
 }
