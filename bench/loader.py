@@ -23,7 +23,7 @@ from nostra.data import Store, make_loader
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the synthetic episodes the tests use
 import fixtures as F  # noqa: E402
 from nostra.data.formats import robomimic_hdf5
-from nostra.policies import NostraPolicy
+from nostra.policies.modules import NostraPolicy
 
 TARGET = 10.0
 

@@ -36,7 +36,8 @@ import numpy as np
 import torch
 
 from nostra.modality import sim_observations
-from nostra.policies import POLICIES, policy_module
+from nostra.policies import POLICIES
+from nostra.policies.modules import policy_module
 
 # what the simulator renders at 84 px, but depth: two RGB views and the proprioception
 MODALITIES = [m for m in sim_observations(84).modalities if m.kind != "depth"]

@@ -16,7 +16,7 @@ import torch
 
 from nostra.workflows.evaluation import jobs_of, run_jobs, EvalSpec, Variant
 from nostra.modality import paper_modalities
-from nostra.policies import NostraPolicy
+from nostra.policies.modules import NostraPolicy
 
 
 def untrained_checkpoint(path: Path) -> str:

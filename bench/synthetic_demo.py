@@ -21,7 +21,8 @@ import torch  # noqa: E402
 from nostra import episode  # noqa: E402
 from nostra.sim import synthetic as S  # noqa: E402
 from nostra.policies.imagination import window_mask  # noqa: E402
-from nostra.policies import policy_module, runner_class  # noqa: E402
+from nostra.policies import runner_class  # noqa: E402
+from nostra.policies.modules import policy_module  # noqa: E402
 from nostra.noise import Injector, NoiseSchedule  # noqa: E402
 
 STEPS, WINDOW = 40, (20, 30)

@@ -21,7 +21,7 @@ import torch
 import yaml
 
 from nostra.modality import Modality, sim_observations
-from nostra.policies import policy_module
+from nostra.policies.modules import policy_module
 
 ROOT = Path(__file__).resolve().parents[1]
 

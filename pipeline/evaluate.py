@@ -16,13 +16,9 @@ def _rollouts(cfg, e) -> None:
 
     variants = [Variant(name, select_checkpoint(v.checkpoint, e.checkpoint), v.mode, v.rnn_horizon, dict(v.adamli or {}))
                 for name, v in e.variants.items() if v]  # null: left out
-    spec = EvalSpec(tasks=e.tasks, noises=e.noises, variants=variants, out_dir=e.out_dir,
-                    episodes=e.episodes, seed=e.seed, horizon=e.horizon, windows=noise_windows(cfg),
-                    noise_params=e.noise_params, workers=e.workers, image_size=e.image_size,
-                    videos_per_cell=e.videos_per_cell, experiment=e.experiment, checkpoint=e.checkpoint,
-                    run_name=f"evaluate-{'-'.join(e.tasks)}",
-                    params={"profile": cfg.profile.name, "seed": cfg.seed, "task": ",".join(e.tasks),
-                            "table": e.table, "setting": e.setting, "checkpoint": e.checkpoint})
+    spec = EvalSpec.from_config(e, variants=variants, windows=noise_windows(cfg), run_name=f"evaluate-{'-'.join(e.tasks)}",
+                                params={"profile": cfg.profile.name, "seed": cfg.seed, "task": ",".join(e.tasks),
+                                        "table": e.table, "setting": e.setting, "checkpoint": e.checkpoint})
     table = evaluate(spec)
     print((Path(e.out_dir) / "success.md").read_text())
     print(f"{len(table)} cells; results in {e.out_dir}")

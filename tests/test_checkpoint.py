@@ -7,7 +7,8 @@ import torch
 
 from conftest import fit, small_net
 from nostra.sim import synthetic as S
-from nostra.policies import policy_module, runner_class
+from nostra.policies import runner_class
+from nostra.policies.modules import policy_module
 from nostra.policies.checkpoint import CheckpointError, load_net, load_runner
 
 

@@ -11,7 +11,7 @@ import torch
 from conftest import small_net
 from nostra.data import CollectionError, SequenceDataset, Store, make_loader, split_episodes
 import fixtures as F
-from nostra.policies import NostraPolicy
+from nostra.policies.modules import NostraPolicy
 
 KEYS = list(F.PAPER_KEYS)
 

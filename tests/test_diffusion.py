@@ -13,7 +13,7 @@ from conftest import fit
 from nostra.configs import DiffusionConfig
 from nostra.data.stats import fit_stats
 from nostra.models.normalizer import Normalizer
-from nostra.policies import policy_module
+from nostra.policies.modules import policy_module
 from nostra.policies.checkpoint import load_net, load_runner
 from nostra.policies.diffusion import DiffusionNet, DiffusionRunner
 from nostra.policies.modules import DiffusionPolicy

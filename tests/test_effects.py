@@ -11,7 +11,8 @@ import torch
 from conftest import SMALL_NET, fit
 from nostra.sim import synthetic as S
 from nostra.policies.imagination import detection_scores
-from nostra.policies import NostraPolicy, NostraRunner
+from nostra.policies import NostraRunner
+from nostra.policies.modules import NostraPolicy
 
 STEPS, WINDOW = 40, (20, 30)
 

@@ -13,7 +13,7 @@ import torch
 
 from conftest import small_net
 from nostra.modality import Modality, ObservationSpec, render_size, sim_observations, to_plain
-from nostra.policies import policy_module
+from nostra.policies.modules import policy_module
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS, SIZE = ["robot0_eef_pos", "agentview_image"], 36  # a subset, at a size no profile renders
@@ -211,3 +211,42 @@ def test_the_spelling_check_can_fail():
     texts = {"nostra/modality.py": 'Modality("agentview_depth", "depth", (84, 84, 1))',
              "nostra/noise.py": 'DEPTH_KEYS = ("agentview_depth",)  # robot0_eef_pos too'}
     assert spellings(texts) == {"nostra/noise.py": ["agentview_depth", "robot0_eef_pos"]}
+
+
+def test_windows_that_start_past_the_horizon_are_named_before_any_rollout(tmp_path, ckpt, fake_sim, recwarn):
+    from nostra.workflows.evaluation import EvalSpec, Variant, validate
+
+    spec = EvalSpec(tasks=["Lift"], noises=["mask"], variants=[Variant("lstm", ckpt)], out_dir=str(tmp_path),
+                    horizon=40, windows={"Lift": [[15, 35], [45, 60]]})
+    with pytest.warns(UserWarning, match=r"task Lift: noise windows \[\[45, 60\]\] start at or after the rollout horizon 40"):
+        validate(spec)
+    spec.horizon = 60  # [45, 60) ends at the horizon: applied in full
+    recwarn.clear()
+    validate(spec)
+    assert not [w for w in recwarn if "rollout horizon" in str(w.message)]
+    assert fake_sim.built == []
+
+
+def test_the_eval_spec_is_built_from_the_typed_config():
+    from dataclasses import fields
+
+    from nostra.configs import EvaluateConfig
+    from nostra.workflows.evaluation import EvalSpec
+
+    e = EvaluateConfig(tasks=["Lift"], noises=["mask"], out_dir="ev", episodes=7, seed=5, horizon=60, workers=1,
+                       videos_per_cell=0, checkpoint="best", experiment="x", noise_params={"mask": {}})
+    spec = EvalSpec.from_config(e, variants=[], windows={"Lift": [[1, 2]]}, run_name="r")
+    shared = {f.name for f in fields(EvalSpec)} & {f.name for f in fields(EvaluateConfig)} - {"variants", "windows"}
+    assert shared >= {"episodes", "seed", "horizon", "workers", "checkpoint", "noise_params", "image_size"}
+    assert all(getattr(spec, n) == getattr(e, n) for n in shared)
+    assert (spec.variants, spec.windows, spec.run_name) == ([], {"Lift": [[1, 2]]}, "r")
+
+
+@pytest.mark.parametrize("profile", ["ci", "tiny", "cpu", "paper"])
+def test_every_profile_selects_keys_the_simulator_renders(profile):
+    from omegaconf import OmegaConf
+
+    from nostra.modality import sim_observations
+
+    keys = OmegaConf.load(ROOT / "conf" / "profile" / f"{profile}.yaml").get("obs_keys") or []
+    assert set(keys) <= set(sim_observations().names), sorted(set(keys) - set(sim_observations().names))

@@ -9,7 +9,7 @@ from torch.utils.data import DataLoader
 
 from conftest import fit, small_net
 from nostra.sim import synthetic as S
-from nostra.policies import policy_module
+from nostra.policies.modules import policy_module
 
 
 @pytest.mark.parametrize("policy,head", [("nostra", "gaussian"), ("rssm", "gaussian"), ("lstm", "gaussian"),

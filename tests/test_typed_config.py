@@ -52,7 +52,7 @@ def _arguments(fn, skip=("self", "modalities", "action_dim", "encoder_kwargs")) 
 
 @pytest.mark.parametrize("policy", list(MODEL_CONFIGS))
 def test_net_config_fields_are_the_network_arguments_with_the_same_defaults(policy):
-    from nostra.policies import policy_module
+    from nostra.policies.modules import policy_module
     from nostra.policies.base import PolicyNet
 
     net_cls = policy_module(policy).net_cls
@@ -210,7 +210,7 @@ def test_a_key_added_with_plus_fails_instead_of_being_dropped():
 
 
 def test_a_policy_module_refuses_unknown_keys_and_takes_the_dataclass_defaults():
-    from nostra.policies import policy_module
+    from nostra.policies.modules import policy_module
 
     with pytest.raises(ConfigError, match="unknown key 'net.rnn_hiden'"):
         policy_module("lstm")(MODS, 2, net={"rnn_hiden": 3})
@@ -271,7 +271,7 @@ def _save(tmp_path, module, name: str = "m.ckpt", edit=None) -> Path:
 
 
 def test_a_checkpoint_keeps_the_whole_config(tmp_path):
-    from nostra.policies import policy_module
+    from nostra.policies.modules import policy_module
     from nostra.policies.checkpoint import load_net, read_meta, stored_config
 
     module = policy_module("rssm")(MODS, 2, net={**small_net("rssm"), "rnn_horizon": 7}, optim={"lr": 3e-4},
@@ -287,7 +287,7 @@ def test_a_checkpoint_keeps_the_whole_config(tmp_path):
 
 
 def test_an_older_checkpoint_with_only_its_net_keys_still_loads(tmp_path):
-    from nostra.policies import policy_module
+    from nostra.policies.modules import policy_module
     from nostra.policies.checkpoint import load_net, read_meta, stored_config
 
     module = policy_module("lstm")(MODS, 2, net=small_net("lstm"))
@@ -302,7 +302,7 @@ def test_an_older_checkpoint_with_only_its_net_keys_still_loads(tmp_path):
 
 
 def test_a_checkpoint_with_an_unknown_net_key_fails_naming_the_file_and_key(tmp_path):
-    from nostra.policies import policy_module
+    from nostra.policies.modules import policy_module
     from nostra.policies.checkpoint import CheckpointError, load_net
 
     module = policy_module("lstm")(MODS, 2, net=small_net("lstm"))

@@ -1,5 +1,6 @@
 """Policies by name: each a network and a stateful runner for rollouts (importing this package does
-not import Lightning), and a LightningModule for training (nostra.policies.modules, loaded on use)."""
+not import Lightning), and a LightningModule for training (nostra.policies.modules, which imports Lightning:
+``policy_module(name)`` there)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,6 @@ POLICIES = {
     "lstm": (LSTMNet, LSTMRunner),
     "diffusion": (DiffusionNet, DiffusionRunner),
 }
-_MODULES = ("NostraPolicy", "RSSMPolicy", "LSTMPolicy", "DiffusionPolicy", "PolicyModule")
 
 
 def _lookup(name: str):
@@ -32,21 +32,5 @@ def runner_class(name: str):
     return _lookup(name)[1]
 
 
-def policy_module(name: str):
-    """The LightningModule class that trains policy ``name`` (imports Lightning)."""
-    _lookup(name)
-    from nostra.policies.modules import MODULES
-
-    return MODULES[name]
-
-
-def __getattr__(name: str):  # the Lightning modules by name, imported on first use
-    if name in _MODULES:
-        from nostra.policies import modules
-
-        return getattr(modules, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-__all__ = ["POLICIES", "net_class", "policy_module", "runner_class", "NostraNet", "NostraRunner", "RSSMNet",
-           "RSSMRunner", "LSTMNet", "LSTMRunner", "DiffusionNet", "DiffusionRunner", *_MODULES]
+__all__ = ["POLICIES", "net_class", "runner_class", "NostraNet", "NostraRunner", "RSSMNet",
+           "RSSMRunner", "LSTMNet", "LSTMRunner", "DiffusionNet", "DiffusionRunner"]

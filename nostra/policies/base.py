@@ -18,8 +18,8 @@ from nostra.modality import Modality, as_modalities
 from nostra.models.encoders import ModalityEncoder
 from nostra.models.normalizer import Normalizer
 
-# The version of the metadata PolicyModule.on_save_checkpoint (nostra.policies.modules) writes;
-# nostra.policies.checkpoint reads checkpoints and refuses other versions. The dependency is one-way: checkpoint.py imports
+# The version of the metadata nostra.policies.checkpoint writes (write_meta, on every Lightning save)
+# and reads (it refuses other versions). The dependency is one-way: checkpoint.py imports
 # this module (and the policy registry), this module knows nothing of reading checkpoints.
 CHECKPOINT_FORMAT = 1
 

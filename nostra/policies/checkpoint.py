@@ -1,7 +1,7 @@
 """Loading a trained policy from a Lightning checkpoint with no training code, with clear errors
 for a file that is not a policy checkpoint, another policy, or another modality set.
 
-The metadata is written by ``PolicyModule.on_save_checkpoint`` (nostra.policies.modules;
+The metadata is written here too (``write_meta``, which ``PolicyModule.on_save_checkpoint`` calls;
 CHECKPOINT_FORMAT is in nostra.policies.base). Imports go one way: this module imports base and the policy registry
 (nostra.policies); neither imports this module (tests/test_imports.py checks it)."""
 
@@ -21,6 +21,14 @@ from nostra.policies.base import CHECKPOINT_FORMAT
 
 class CheckpointError(ValueError):
     pass
+
+
+def write_meta(checkpoint: dict, config: ModelConfig, modalities: list[dict], action_dim: int) -> None:
+    """Store the policy's metadata in a Lightning checkpoint dict: the format, the observation
+    contract (the modalities, plain), the action size and the whole typed config (policy, net,
+    optim, loss), from which ``load_net`` rebuilds the network."""
+    checkpoint["nostra"] = {"format": CHECKPOINT_FORMAT, "modalities": modalities, "action_dim": action_dim,
+                            **asdict(config)}
 
 
 def read_meta(path) -> tuple[dict, dict]:

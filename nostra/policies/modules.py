@@ -15,7 +15,9 @@ from torch.optim.swa_utils import AveragedModel
 
 from nostra.configs import model_config
 from nostra.modality import Modality, as_modalities, to_plain
-from nostra.policies.base import CHECKPOINT_FORMAT, PolicyNet
+from nostra.policies import POLICIES
+from nostra.policies.base import PolicyNet
+from nostra.policies.checkpoint import write_meta
 from nostra.policies.diffusion import DiffusionNet
 from nostra.policies.lstm import LSTMNet
 from nostra.policies.nostra import NostraNet
@@ -73,13 +75,7 @@ class PolicyModule(L.LightningModule):
         return torch.optim.Adam(self.parameters(), lr=self.config.optim.lr)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
-        # the whole typed config (policy, net, optim, loss); nostra.policies.checkpoint rebuilds it
-        checkpoint["nostra"] = {
-            "format": CHECKPOINT_FORMAT,
-            "modalities": self.hparams["modalities"],
-            "action_dim": self.hparams["action_dim"],
-            **asdict(self.config),
-        }
+        write_meta(checkpoint, self.config, self.hparams["modalities"], self.hparams["action_dim"])
 
 
 class LSTMPolicy(PolicyModule):
@@ -154,3 +150,10 @@ class DiffusionPolicy(PolicyModule):
 
 
 MODULES = {"nostra": NostraPolicy, "rssm": RSSMPolicy, "lstm": LSTMPolicy, "diffusion": DiffusionPolicy}
+
+
+def policy_module(name: str):
+    """The LightningModule class that trains policy ``name``."""
+    if name not in MODULES:
+        raise ValueError(f"unknown policy {name!r}; valid: {', '.join(POLICIES)}")
+    return MODULES[name]

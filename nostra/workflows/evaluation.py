@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -56,6 +57,20 @@ class EvalSpec:
     params: dict = field(default_factory=dict)
     checkpoint: str = "last"   # which checkpoint of each run the variants use (the tables say it)
 
+    @classmethod
+    def from_config(cls, config, **extra) -> "EvalSpec":
+        """From the typed evaluate config (nostra.configs.EvaluateConfig): every field the two share
+        by name, then ``extra`` (what the stage resolves: variants, windows, run name, MLflow params)."""
+        shared = {f.name for f in fields(cls)} & {f.name for f in fields(config)}
+        return cls(**{**{n: getattr(config, n) for n in shared}, **extra})
+
+
+
+def task_windows(windows: dict, name: str, task) -> list[list[int]]:
+    """The noise windows of ``task`` (a registry Task, asked for as ``name``): those ``windows``
+    (task -> [[start, end], ...]) gives under either name, else the task's own."""
+    return windows.get(name) or windows.get(task.name) or [list(w) for w in task.noise_windows]
+
 
 def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     """95% Wilson score interval of a success rate (written out: one formula, no statsmodels)."""
@@ -77,7 +92,11 @@ def validate(spec: EvalSpec) -> None:
 
     for task in spec.tasks:
         t = get_task(task)
-        windows = spec.windows.get(task) or spec.windows.get(t.name) or [list(w) for w in t.noise_windows]
+        windows, horizon = task_windows(spec.windows, task, t), spec.horizon or t.horizon
+        late = [w for w in windows if w[0] >= horizon]
+        if late and any(n != "none" for n in spec.noises):  # a warning: micro profiles (ci) roll out a few steps on purpose
+            warnings.warn(f"task {t.name}: noise windows {late} start at or after the rollout horizon {horizon}: "
+                          "never applied, so those cells are noise-free there", stacklevel=2)
         for noise in spec.noises:
             try:
                 NoiseSchedule(noise, windows, spec.noise_params)
@@ -119,7 +138,7 @@ def jobs_of(spec: EvalSpec) -> list[EpisodeJob]:
     jobs, out = [], Path(spec.out_dir)
     for task in spec.tasks:
         t = get_task(task)
-        windows = spec.windows.get(task) or spec.windows.get(t.name) or [list(w) for w in t.noise_windows]
+        windows = task_windows(spec.windows, task, t)
         for i in range(spec.episodes):
             for noise in spec.noises:
                 for v in spec.variants:

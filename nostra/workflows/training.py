@@ -20,7 +20,7 @@ from nostra.workflows import ddp
 from nostra.data.dataset import SPLIT_FILE, make_loader, save_split, split_episodes
 from nostra.data.store import Store
 from nostra.modality import sim_observations
-from nostra.policies import policy_module
+from nostra.policies.modules import policy_module
 from nostra.policies.checkpoint import load_net
 from nostra.workflows.tracking import Tracker, TrackingLogger
 from nostra.workflows.training_rollouts import RolloutCallback, RolloutEnv

@@ -93,7 +93,7 @@ class RolloutCallback(L.Callback):
 
     # ---- one check -------------------------------------------------------------------------
     def check(self, trainer, episodes: int) -> dict:
-        from nostra.workflows.evaluation import run_jobs, wilson
+        from nostra.workflows.evaluation import run_jobs, task_windows, wilson
         from nostra.sim.rollout import EpisodeJob
 
         step, start = trainer.global_step, time.time()
@@ -102,7 +102,7 @@ class RolloutCallback(L.Callback):
         row = {"step": step, "episodes": episodes, "checkpoint": path.name, "success": {}}
         if trainer.is_global_zero:
             cells = [(n, m) for n in self.cfg.noises for m in self.cfg.modes]
-            windows = self.env.windows.get(self.task.name) or [list(w) for w in self.task.noise_windows]
+            windows = task_windows(self.env.windows, self.task.name, self.task)
             jobs = [EpisodeJob(self.task.name, n, variant_id(self.policy, m), str(path), m, self.cfg.seed + i,
                                self.cfg.horizon or self.task.horizon, windows, dict(self.env.noise_params))
                     for n, m in cells for i in range(episodes)]
