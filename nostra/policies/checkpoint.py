@@ -32,7 +32,7 @@ def write_meta(checkpoint: dict, config: ModelConfig, modalities: list[dict], ac
 
 
 def read_meta(path) -> tuple[dict, dict]:
-    """(meta, state_dict) of a policy checkpoint written by PolicyModule."""
+    """(meta, state_dict) of a policy checkpoint (its metadata written by ``write_meta``)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {path} does not exist")

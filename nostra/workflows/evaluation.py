@@ -65,7 +65,6 @@ class EvalSpec:
         return cls(**{**{n: getattr(config, n) for n in shared}, **extra})
 
 
-
 def task_windows(windows: dict, name: str, task) -> list[list[int]]:
     """The noise windows of ``task`` (a registry Task, asked for as ``name``): those ``windows``
     (task -> [[start, end], ...]) gives under either name, else the task's own."""
