@@ -15,7 +15,6 @@ from torch.optim.swa_utils import AveragedModel
 
 from nostra.configs import model_config
 from nostra.modality import Modality, as_modalities, to_plain
-from nostra.policies import POLICIES
 from nostra.policies.base import PolicyNet
 from nostra.policies.checkpoint import write_meta
 from nostra.policies.diffusion import DiffusionNet
@@ -155,5 +154,5 @@ MODULES = {"nostra": NostraPolicy, "rssm": RSSMPolicy, "lstm": LSTMPolicy, "diff
 def policy_module(name: str):
     """The LightningModule class that trains policy ``name``."""
     if name not in MODULES:
-        raise ValueError(f"unknown policy {name!r}; valid: {', '.join(POLICIES)}")
+        raise ValueError(f"unknown policy {name!r}; valid: {', '.join(MODULES)}")
     return MODULES[name]
