@@ -102,7 +102,7 @@ class DiffusionOptimConfig(OptimConfig):
     weight_decay: float = 1e-6
     lr_scheduler: str = "cosine"
     warmup_steps: int = 500
-    total_steps: int | None = None   # None: the trainer's length
+    total_steps: int | None = None   # the cosine's length; None: the trainer's (max_steps)
     ema_power: float = 0.75
     ema_max_decay: float = 0.9999
 

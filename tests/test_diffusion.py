@@ -157,6 +157,32 @@ def test_registered_and_config_fits():
                                                                                               1e-6, "cosine")
 
 
+def test_cosine_schedule_holds_its_end_past_total_steps():
+    """optim.total_steps sets the cosine's length (the cpu profile: what its time budget buys); a run
+    that goes on past it stays at the schedule's end instead of climbing back up."""
+    module = DiffusionPolicy(MODS, 2, net=TINY, optim={"lr": 1.0, "warmup_steps": 2, "total_steps": 10})
+    sched = module.configure_optimizers()["lr_scheduler"]["scheduler"]
+    lrs = []
+    for _ in range(30):
+        lrs.append(sched.get_last_lr()[0])
+        sched.optimizer.step()
+        sched.step()
+    assert lrs[2] == pytest.approx(1.0) and 0 < lrs[6] < 1.0
+    assert lrs[10] == pytest.approx(0.0, abs=1e-9) and max(lrs[10:]) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_cpu_profile_sizes_the_schedule_to_its_budget():
+    from hydra import compose, initialize_config_dir
+
+    from pipeline._hydra import CONF_DIR
+
+    with initialize_config_dir(CONF_DIR, version_base="1.3"):
+        cpu = compose("config", overrides=["profile=cpu", "model=diffusion"])
+        tiny = compose("config", overrides=["profile=tiny", "model=diffusion"])
+    assert cpu.model.optim.total_steps == cpu.profile.dp_total_steps < cpu.profile.train_steps
+    assert tiny.model.optim.total_steps is None
+
+
 def test_training_windows_cover_the_prediction_horizon():
     """A profile's data.seq_len shorter than the horizon (the cpu profile's 10) is raised to it for
     Diffusion Policy only; a longer one is kept."""

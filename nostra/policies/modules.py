@@ -145,6 +145,9 @@ class DiffusionPolicy(PolicyModule):
                              "or max_epochs, or optim.total_steps")
         sched = get_scheduler(cfg.lr_scheduler, opt, num_warmup_steps=int(cfg.warmup_steps),
                               num_training_steps=int(total))
+        # a run that outlasts `total` (a time budget on a faster machine) holds the schedule's end:
+        # diffusers' half-cycle cosine would otherwise climb back up after it
+        sched.lr_lambdas = [lambda step, f=f: f(min(step, int(total))) for f in sched.lr_lambdas]
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
 
