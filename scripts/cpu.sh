@@ -7,6 +7,7 @@
 # Every step is resumable: generation skips a finished file, ingest is idempotent, training
 # continues from last.ckpt (a finished run ends at once), so a killed run continues where it stopped.
 #   TASK=stackd1 MINUTES=60 HORIZON=300 SEEDS="0 1" MODELS="lstm nostra" make cpu
+#   OBS=rgbd make cpu    # the policies see agentview depth too (profile cpu_rgbd, Table 2), in data/runs/cpu-rgbd
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -15,9 +16,13 @@ SEEDS=${SEEDS:-0}
 MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
 HORIZON=${HORIZON:-}   # rollout horizon in steps; empty: the profile's (200, enough for Lift)
-RUNS=data/runs/cpu
-OUT=reports/cpu/$TASK
-COMMON="profile=cpu task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
+OBS=${OBS:-rgb}        # the observation set: rgb (two cameras + proprioception: Table 1) | rgbd (+ agentview depth: Table 2)
+case $OBS in
+  rgb) PROFILE=cpu RUNS=data/runs/cpu OUT=reports/cpu/$TASK ;;
+  rgbd) PROFILE=cpu_rgbd RUNS=data/runs/cpu-rgbd OUT=reports/cpu-rgbd/$TASK ;;
+  *) echo "cpu.sh: unknown OBS=$OBS; valid: rgb, rgbd" >&2; exit 2 ;;
+esac
+COMMON="profile=$PROFILE task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
@@ -76,6 +81,6 @@ for seed in $SEEDS; do
 done
 
 python -m nostra.workflows.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} make cpu" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS make cpu" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/index.md"

@@ -9,6 +9,9 @@
 #   TASK=liftd1 SEEDS="0 1" MODELS="lstm nostra" make cpu-claims    # MODELS may add rssm diffusion
 # NOISES and CHECKPOINTS pick a subset of the cells to run first (the report covers whatever has run):
 #   SEEDS="0 1" NOISES="none mask blind" CHECKPOINTS=best make cpu-claims
+# Table 2 (multimodal noise, AdaMLI): the policies see agentview depth too (OBS=rgbd, scripts/cpu.sh), and
+# the noises are rgb (both cameras masked), rgbd (+ depth) and all (+ proprioception zeroed):
+#   OBS=rgbd SEEDS=0 MODELS="lstm nostra" make cpu-claims     # reports/cpu-rgbd/<task>/claims/
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -17,14 +20,20 @@ SEEDS=${SEEDS:-0 1}
 MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
 HORIZON=${HORIZON:-}
-NOISES=${NOISES:-none mask cam_jitter table_tex clean_windows blind}
+OBS=${OBS:-rgb}
+case $OBS in
+  rgb) PROFILE=cpu RUNS=data/runs/cpu OUT=reports/cpu/$TASK/claims
+    NOISES=${NOISES:-none mask cam_jitter table_tex clean_windows blind} ;;
+  rgbd) PROFILE=cpu_rgbd RUNS=data/runs/cpu-rgbd OUT=reports/cpu-rgbd/$TASK/claims
+    NOISES=${NOISES:-none rgb rgbd all blind} ;;
+  *) echo "cpu_claims.sh: unknown OBS=$OBS; valid: rgb, rgbd" >&2; exit 2 ;;
+esac
 CHECKPOINTS=${CHECKPOINTS:-best last}
-RUNS=data/runs/cpu
 EVAL=$RUNS/evaluate/$TASK
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
-TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES HORIZON=$HORIZON bash scripts/cpu.sh
+TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES HORIZON=$HORIZON OBS=$OBS bash scripts/cpu.sh
 
 # the variants each noise needs: under none an imagining variant is its closed-loop policy (nothing to
 # imagine), under clean_windows the closed-loop ones see clean frames (= none); blind keeps the
@@ -49,7 +58,7 @@ needed() {  # $1 = noise
 }
 ALL="lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli"
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
-COMMON="profile=cpu task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
+COMMON="profile=$PROFILE task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
 # a model whose last checkpoint is its best (the final check was the best) has the same weights under
 # both names: its last cells are copies of its best cells (folder `same-as-best`), not a second run
 same_as_best() {  # $1 = model, $2 = training seed
@@ -90,7 +99,7 @@ for seed in $SEEDS; do
   done
 done
 
-python -m nostra.workflows.claims --evaluations "$EVAL" --out "reports/cpu/$TASK/claims" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} make cpu-claims" \
+python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS make cpu-claims" \
   --wall-seconds $(( $(date +%s) - start ))
-log "done in $(( ($(date +%s) - start) / 60 )) min: reports/cpu/$TASK/claims/claims.md"
+log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/claims.md"

@@ -85,3 +85,28 @@ def test_cells_not_run_yet_are_not_measured_not_failed(tmp_path):
     assert "| mask hurts closed-loop BC-NOSTRA by >= 10% (100% -> –) | not measured |" in lines
     assert "| blind control <= 20% (BC-LSTM 0%, MLI 0%) | yes |" in lines
     assert lines.count("| not measured |") == 4 and "shown" not in lines
+
+
+def test_table2_noises_get_their_columns_pairs_and_claims(tmp_path):
+    """OBS=rgbd's cells (rgb, rgbd, all): AdaMLI against the others, paired, and its claims gated by
+    whether each noise hurts the closed-loop policy; Table 1's mask claims stay 'not measured'."""
+    for seed in (0, 1):
+        _write(tmp_path, seed, "best", "none", "lstm", [True] * 10)
+        _write(tmp_path, seed, "best", "none", "nostra", [True] * 10)
+        _write(tmp_path, seed, "best", "blind", "lstm", [False] * 10)
+        _write(tmp_path, seed, "best", "blind", "nostra_mli", [False] * 10)
+        for noise in ("rgb", "rgbd", "all"):
+            _write(tmp_path, seed, "best", noise, "nostra", [True] * 4 + [False] * 6)
+            _write(tmp_path, seed, "best", noise, "lstm", [False] * 10)
+            _write(tmp_path, seed, "best", noise, "nostra_adamli", [True] * 10 if noise != "all" else [True] * 5 + [False] * 5)
+    df = load_records(tmp_path)
+    pairs = paired_table(df)
+    r = pairs[(pairs.seed == "pooled") & (pairs.a == "nostra_adamli") & (pairs.b == "lstm") & (pairs.noise == "rgbd")]
+    assert len(r) == 1 and r["diff"].iloc[0] == 1.0
+    lines = "\n".join(verdicts(success_table(df), pairs, "best"))
+    assert "| rgb hurts closed-loop BC-NOSTRA by >= 10% (100% -> 40%) | yes |" in lines
+    assert "| BC-NOSTRA + AdaMLI under rgbd within 10% of its clean success (100% vs 100%) | shown |" in lines
+    assert "| BC-NOSTRA + AdaMLI under all within 10% of its clean success (50% vs 100%) | not shown |" in lines
+    assert lines.count("| not measured |") == 4  # mask's precondition and its three claims
+    report = write_report(tmp_path, tmp_path / "out")
+    assert "### Table 2, training seed pooled" in report and "| none | rgb | rgbd | all | blind |" in report

@@ -242,7 +242,7 @@ def test_the_eval_spec_is_built_from_the_typed_config():
     assert (spec.variants, spec.windows, spec.run_name) == ([], {"Lift": [[1, 2]]}, "r")
 
 
-@pytest.mark.parametrize("profile", ["ci", "tiny", "cpu", "paper"])
+@pytest.mark.parametrize("profile", sorted(p.stem for p in (ROOT / "conf" / "profile").glob("*.yaml")))
 def test_every_profile_selects_keys_the_simulator_renders(profile):
     from omegaconf import OmegaConf
 
@@ -250,3 +250,18 @@ def test_every_profile_selects_keys_the_simulator_renders(profile):
 
     keys = OmegaConf.load(ROOT / "conf" / "profile" / f"{profile}.yaml").get("obs_keys") or []
     assert set(keys) <= set(sim_observations().names), sorted(set(keys) - set(sim_observations().names))
+
+
+def test_cpu_rgbd_is_the_cpu_profile_seeing_depth_too():
+    """Table 2's profile (OBS=rgbd in scripts/cpu.sh): the cpu profile's budget and shapes, and the
+    observation set with agentview depth added."""
+    from hydra import compose, initialize_config_dir
+
+    from pipeline._hydra import CONF_DIR
+
+    with initialize_config_dir(CONF_DIR, version_base="1.3"):
+        cpu = compose("config", overrides=["profile=cpu"])
+        rgbd = compose("config", overrides=["profile=cpu_rgbd"])
+    assert rgbd.data.obs_keys == cpu.data.obs_keys[:2] + ["agentview_depth"] + cpu.data.obs_keys[2:]
+    assert {k: v for k, v in rgbd.profile.items() if k not in ("name", "obs_keys")} == \
+        {k: v for k, v in cpu.profile.items() if k not in ("name", "obs_keys")}

@@ -1,5 +1,5 @@
-"""The paper's claims at CPU scale (`make cpu-claims`): Table 1 per training seed and pooled, the
-controls, the paired comparisons and a verdict per claim, all read from the episode records that
+"""The paper's claims at CPU scale (`make cpu-claims`): Table 1 (and Table 2's multimodal noises,
+`OBS=rgbd`) per training seed and pooled, the controls, the paired comparisons and a verdict per claim, all read from the episode records that
 `nostra evaluate` wrote (records/<task>/<noise>/<variant>_seed<k>.npz under any folder of
 <runs>/evaluate/<task>/s<training seed>/<checkpoint>/).
 
@@ -23,12 +23,14 @@ from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
 TABLE1_NOISES = ["none", "mask", "cam_jitter", "table_tex"]
+TABLE2_NOISES = ["rgb", "rgbd", "all"]  # multimodal noise (cameras, + depth, + proprioception), AdaMLI's table
 CONTROL_NOISES = ["clean_windows", "blind"]
 ROWS = ["lstm", "diffusion", "rssm", "rssm_li", "nostra", "nostra_mli", "nostra_adamli"]
 # (a, b, noises): a - b, paired on the same initial states
 PAIRS = [("nostra_mli", "nostra", TABLE1_NOISES[1:]), ("nostra_mli", "lstm", TABLE1_NOISES),
          ("nostra_mli", "diffusion", TABLE1_NOISES), ("nostra_mli", "rssm_li", TABLE1_NOISES[1:]),
-         ("nostra_adamli", "nostra_mli", TABLE1_NOISES[1:])]
+         ("nostra_adamli", "nostra_mli", TABLE1_NOISES[1:])] + [
+    ("nostra_adamli", b, TABLE2_NOISES) for b in ("nostra", "lstm", "diffusion", "rssm")]
 CLEAN_MIN, BLIND_MAX, WITHIN = 0.85, 0.20, 0.10  # the issue's bars: clean >= 85%, blind <= 20%, within 10 points
 POOLED = "pooled"
 
@@ -109,45 +111,58 @@ def false_imagination(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: str = POOLED) -> list[str]:
-    """The paper's claims, each shown / not shown / not testable, with the numbers that decided it."""
+    """The paper's claims, each shown / not shown / not testable, with the numbers that decided it.
+    Table 1's claims are about mask; Table 2's (listed once one of its noises ran) about rgb, rgbd, all.
+    A claim about a noise is testable where the clean and blind bars hold and that noise hurts."""
     s = success[(success.checkpoint == checkpoint) & (success.seed == seed)].set_index(["variant", "noise"])
     rate = lambda v, n: s.rate.get((v, n), np.nan)  # noqa: E731
     pct = lambda x: "–" if np.isnan(x) else f"{100 * x:.0f}%"  # noqa: E731
-    # each row: (text, holds, the numbers it needs); a row missing a number is "not measured"
-    pre = [(f"closed-loop clean >= {CLEAN_MIN:.0%} (BC-LSTM {pct(rate('lstm', 'none'))}, BC-NOSTRA "
-            f"{pct(rate('nostra', 'none'))})", min(rate("lstm", "none"), rate("nostra", "none")) >= CLEAN_MIN,
-            [rate("lstm", "none"), rate("nostra", "none")]),
-           (f"blind control <= {BLIND_MAX:.0%} (BC-LSTM {pct(rate('lstm', 'blind'))}, MLI "
-            f"{pct(rate('nostra_mli', 'blind'))})", max(rate("lstm", "blind"), rate("nostra_mli", "blind")) <= BLIND_MAX,
-            [rate("lstm", "blind"), rate("nostra_mli", "blind")]),
-           (f"mask hurts closed-loop BC-NOSTRA by >= {WITHIN:.0%} ({pct(rate('nostra', 'none'))} -> "
-            f"{pct(rate('nostra', 'mask'))})", rate("nostra", "none") - rate("nostra", "mask") >= WITHIN,
-            [rate("nostra", "none"), rate("nostra", "mask")])]
     p = pairs[(pairs.checkpoint == checkpoint) & (pairs.seed == seed)] if len(pairs) else pairs
-    vs_lstm = p[(p.a == "nostra_mli") & (p.b == "lstm") & (p.noise == "mask")] if len(p) else p
-    gain, p_lstm = (vs_lstm["diff"].iloc[0], vs_lstm["p"].iloc[0]) if len(vs_lstm) else (np.nan, np.nan)
-    claims = [
-        (f"BC-NOSTRA + MLI under mask within {WITHIN:.0%} of its clean success "
-         f"({pct(rate('nostra_mli', 'mask'))} vs {pct(rate('nostra', 'none'))})",
-         rate("nostra", "none") - rate("nostra_mli", "mask") <= WITHIN, [rate("nostra", "none"), rate("nostra_mli", "mask")]),
-        ("BC-NOSTRA + MLI above BC-LSTM under mask with McNemar p < 0.05 "
-         + (f"({gain * 100:+.0f} points, p = {p_lstm:.2g})" if len(vs_lstm) else "(–)"),
-         gain > 0 and p_lstm < 0.05, [gain, p_lstm]),
-        (f"AdaMLI within {WITHIN:.0%} of oracle MLI under mask ({pct(rate('nostra_adamli', 'mask'))} vs "
-         f"{pct(rate('nostra_mli', 'mask'))})", abs(rate("nostra_adamli", "mask") - rate("nostra_mli", "mask")) <= WITHIN,
-         [rate("nostra_adamli", "mask"), rate("nostra_mli", "mask")]),
-    ]
+
+    def above(a: str, noise: str) -> tuple[str, bool, list]:  # a above BC-LSTM under noise, paired
+        row = p[(p.a == a) & (p.b == "lstm") & (p.noise == noise)] if len(p) else p
+        gain, pv = (row["diff"].iloc[0], row["p"].iloc[0]) if len(row) else (np.nan, np.nan)
+        return (f"{LABELS[a]} above BC-LSTM under {noise} with McNemar p < 0.05 "
+                + (f"({gain * 100:+.0f} points, p = {pv:.2g})" if len(row) else "(–)"), gain > 0 and pv < 0.05, [gain, pv])
+
+    def within(a: str, noise: str) -> tuple[str, bool, list]:  # a under noise within 10 points of clean NOSTRA
+        return (f"{LABELS[a]} under {noise} within {WITHIN:.0%} of its clean success "
+                f"({pct(rate(a, noise))} vs {pct(rate('nostra', 'none'))})",
+                rate("nostra", "none") - rate(a, noise) <= WITHIN, [rate("nostra", "none"), rate(a, noise)])
+
+    def hurts(noise: str) -> tuple[str, bool, list]:
+        return (f"{noise} hurts closed-loop BC-NOSTRA by >= {WITHIN:.0%} ({pct(rate('nostra', 'none'))} -> "
+                f"{pct(rate('nostra', noise))})", rate("nostra", "none") - rate("nostra", noise) >= WITHIN,
+                [rate("nostra", "none"), rate("nostra", noise)])
+
+    base = [(f"closed-loop clean >= {CLEAN_MIN:.0%} (BC-LSTM {pct(rate('lstm', 'none'))}, BC-NOSTRA "
+             f"{pct(rate('nostra', 'none'))})", min(rate("lstm", "none"), rate("nostra", "none")) >= CLEAN_MIN,
+             [rate("lstm", "none"), rate("nostra", "none")]),
+            (f"blind control <= {BLIND_MAX:.0%} (BC-LSTM {pct(rate('lstm', 'blind'))}, MLI "
+             f"{pct(rate('nostra_mli', 'blind'))})", max(rate("lstm", "blind"), rate("nostra_mli", "blind")) <= BLIND_MAX,
+             [rate("lstm", "blind"), rate("nostra_mli", "blind")])]
+    # (noise, its claims): Table 1's, then Table 2's once any of its cells exist
+    claims = [("mask", [within("nostra_mli", "mask"), above("nostra_mli", "mask"),
+                        (f"AdaMLI within {WITHIN:.0%} of oracle MLI under mask ({pct(rate('nostra_adamli', 'mask'))} vs "
+                         f"{pct(rate('nostra_mli', 'mask'))})",
+                         abs(rate("nostra_adamli", "mask") - rate("nostra_mli", "mask")) <= WITHIN,
+                         [rate("nostra_adamli", "mask"), rate("nostra_mli", "mask")])])]
+    if set(TABLE2_NOISES) & set(s.index.get_level_values("noise")):
+        claims += [(n, [within("nostra_adamli", n), above("nostra_adamli", n)]) for n in TABLE2_NOISES]
     measured = lambda xs: not any(np.isnan(x) for x in xs)  # noqa: E731
+    holds = lambda row: row[1] and measured(row[2])  # noqa: E731
+    pre = base + [hurts(n) for n, _ in claims]
     lines = ["| Precondition | holds |", "|---|---|"] + [
         f"| {t} | {('yes' if ok else 'no') if measured(xs) else 'not measured'} |" for t, ok, xs in pre]
-    testable = all(ok and measured(xs) for _, ok, xs in pre)
     lines += ["", "| Claim | verdict |", "|---|---|"]
-    for text, ok, xs in claims:
-        if not measured(xs):
-            verdict = "not measured"
-        else:
-            verdict = ("shown" if ok else "not shown") if testable else f"not testable ({'shown' if ok else 'not shown'} as measured)"
-        lines.append(f"| {text} | {verdict} |")
+    for noise, rows in claims:
+        testable = all(holds(r) for r in base) and holds(hurts(noise))
+        for text, ok, xs in rows:
+            if not measured(xs):
+                verdict = "not measured"
+            else:
+                verdict = ("shown" if ok else "not shown") if testable else f"not testable ({'shown' if ok else 'not shown'} as measured)"
+            lines.append(f"| {text} | {verdict} |")
     return lines
 
 
@@ -155,9 +170,9 @@ def _cell(r) -> str:
     return f"{100 * r.rate:.0f} [{100 * r.ci_low:.0f}, {100 * r.ci_high:.0f}]"
 
 
-def table1_markdown(success: pd.DataFrame, checkpoint: str, seed: str) -> list[str]:
+def success_markdown(success: pd.DataFrame, checkpoint: str, seed: str) -> list[str]:
     s = success[(success.checkpoint == checkpoint) & (success.seed == seed)]
-    noises = [n for n in TABLE1_NOISES + CONTROL_NOISES if n in set(s.noise)]
+    noises = [n for n in TABLE1_NOISES + TABLE2_NOISES + CONTROL_NOISES if n in set(s.noise)]
     lines = ["| Method | " + " | ".join(noises) + " |", "|---" * (len(noises) + 1) + "|"]
     for v in [v for v in ROWS if v in set(s.variant)]:
         r = s[s.variant == v].set_index("noise")
@@ -186,6 +201,9 @@ def write_report(evaluations: Path, out: Path, header: list[str] = ()) -> str:
     pairs.to_csv(out / "paired.csv", index=False)
     fir.to_csv(out / "false_imagination.csv", index=False)
     seeds = sorted(set(success.seed) - {POOLED}, key=str) + [POOLED]
+    ran = set(success.noise)
+    tables = " and ".join(t for t, noises in (("Table 1", TABLE1_NOISES[1:]), ("Table 2", TABLE2_NOISES))
+                          if ran & set(noises)) or "Clean and controls"
     text = ["# The paper's claims at CPU scale", "", *header,
             "Success in % over the episodes of each cell (95% Wilson interval); *clean_windows*: mask's windows with "
             "nothing corrupted (MLI imagines the cameras there: imagination's own cost); *blind*: no camera all "
@@ -193,7 +211,7 @@ def write_report(evaluations: Path, out: Path, header: list[str] = ()) -> str:
     for ck in [c for c in ("best", "last") if c in set(success.checkpoint)] + sorted(set(success.checkpoint) - {"best", "last"}):
         text += [f"## Checkpoint: {ck}", ""]
         for seed in seeds:
-            text += [f"### Table 1, training seed {seed}", "", *table1_markdown(success, ck, seed), ""]
+            text += [f"### {tables}, training seed {seed}", "", *success_markdown(success, ck, seed), ""]
         text += ["### Paired comparisons (pooled)", "", *paired_markdown(pairs, ck, POOLED), "",
                  "### Claims (pooled)", "", *verdicts(success, pairs, ck), ""]
         f = fir[(fir.checkpoint == ck) & (fir.seed == POOLED)]
