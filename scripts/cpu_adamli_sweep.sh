@@ -4,8 +4,11 @@
 # grid of (f_o, f_c) with k_o, k_c at the paper's values, then one table and one figure of
 # precision, recall and false imagination (reports/cpu/<task>/adamli_sweep/). Offline: AdaMLI
 # replays the recorded demos, so each setting costs about a minute here, not a training run.
-# Resumable: an analysis already written is kept.
+# Closed loop: each setting also drives BC-NOSTRA + AdaMLI (best checkpoint) for EPISODES rollouts
+# per noise of ROLLOUT_NOISES (the same initial states as make cpu-claims; ~3-4 min a cell on Lift
+# here); ROLLOUT_NOISES="" skips them. Resumable: an analysis or a rollout cell already written is kept.
 #   TASK=liftd1 SEED=0 F_O="5 10 20 40" F_C="1.5 3 6" NOISE=mask bash scripts/cpu_adamli_sweep.sh
+#   ROLLOUT_NOISES="none mask" EPISODES=50 F_O="5 20 80" F_C=3 bash scripts/cpu_adamli_sweep.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -14,8 +17,11 @@ SEED=${SEED:-0}
 F_O=${F_O:-5 10 20 40}
 F_C=${F_C:-1.5 3 6}
 NOISE=${NOISE:-mask}
+ROLLOUT_NOISES=${ROLLOUT_NOISES-none mask}
+EPISODES=${EPISODES:-50}
 RUNS=data/runs/cpu
 ROOT=$RUNS/offline/$TASK-adamli
+ROLLOUTS=$RUNS/evaluate/$TASK-adamli
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 WINDOWS=$(python -c "import yaml; print(yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows'])" | tr -d ' ')
 for fo in $F_O; do
@@ -30,5 +36,19 @@ for fo in $F_O; do
       evaluate.offline.setting=good_view evaluate.out_dir=$out
   done
 done
+drop=$(for v in lstm diffusion rssm rssm_li nostra nostra_mli; do printf 'evaluate.variants.%s=null ' $v; done)
+for fo in $F_O; do
+  for fc in $F_C; do
+    for noise in $ROLLOUT_NOISES; do
+      out=$ROLLOUTS/s$SEED-fo$fo-fc$fc/$noise
+      [ -f "$out/success.csv" ] && { echo "rollouts f_o=$fo f_c=$fc $noise: done before, kept"; continue; }
+      echo "[$(date +%H:%M:%S)] rollouts seed $SEED $noise f_o=$fo f_c=$fc ($EPISODES episodes)"
+      nostra evaluate profile=cpu task=$TASK paths.runs=$RUNS seed=$SEED evaluate.checkpoint=best \
+        "evaluate.noises=[$noise]" evaluate.episodes=$EPISODES $drop \
+        "evaluate.variants.nostra_adamli.adamli={f_o: $fo, f_c: $fc}" evaluate.offline.enabled=false evaluate.out_dir=$out
+    done
+  done
+done
 python -m nostra.workflows.offline_report --analyses "$ROOT" --out "reports/cpu/$TASK/adamli_sweep" --no-figures \
-  --command "TASK=$TASK SEED=$SEED F_O=\"$F_O\" F_C=\"$F_C\" NOISE=$NOISE bash scripts/cpu_adamli_sweep.sh"
+  --rollouts "$ROLLOUTS" \
+  --command "TASK=$TASK SEED=$SEED F_O=\"$F_O\" F_C=\"$F_C\" NOISE=$NOISE ROLLOUT_NOISES=\"$ROLLOUT_NOISES\" EPISODES=$EPISODES bash scripts/cpu_adamli_sweep.sh"

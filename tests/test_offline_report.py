@@ -57,3 +57,23 @@ def test_analyses_that_differ_in_thresholds_make_a_sensitivity_table_and_figure(
     assert "| noise | f_o | precision | recall | false imagination |" in text  # only the varied threshold
     assert "| mask | 5 | 0.80 | 0.40 | 2.0% |" in text and "| mask | 20 | 0.80 | 0.40 | 2.0% |" in text
     assert (tmp_path / "out/adamli_sweep.png").stat().st_size > 1000 and "Figure 5" not in text
+
+
+def test_threshold_sweep_adds_closed_loop_success_per_setting(tmp_path):
+    import numpy as np
+
+    for f_o in (5.0, 20.0):
+        _analysis(tmp_path / "runs", f"s0-fo{f_o:g}/mask", "mask", "a.ckpt", {"cam": 1.0}, adamli={"f_o": f_o, "f_c": 3.0})
+        for noise, wins in (("none", 4 if f_o == 5 else 3), ("mask", 1)):
+            rec = tmp_path / "rollouts" / f"s0-fo{f_o:g}" / noise / "records" / "LiftD1" / noise
+            rec.mkdir(parents=True)
+            for k in range(4):
+                np.savez(rec / f"nostra_adamli_seed{1000 + k}.npz", success=k < wins)
+    main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--no-figures",
+          "--rollouts", str(tmp_path / "rollouts")])
+    text = (tmp_path / "out/offline.md").read_text()
+    assert "| noise | f_o | precision | recall | false imagination | closed-loop success, none | closed-loop success, mask |" in text
+    assert "| mask | 5 | 0.80 | 0.40 | 2.0% | 100 [51, 100] | 25 [5, 70] |" in text
+    assert "| mask | 20 | 0.80 | 0.40 | 2.0% | 75 [30, 95] | 25 [5, 70] |" in text
+    csv = (tmp_path / "out/adamli_sweep.csv").read_text().splitlines()[0]
+    assert "success_none,success_none_low,success_none_high" in csv

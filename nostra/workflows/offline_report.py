@@ -69,6 +69,42 @@ def detection_table(analyses: list[dict]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def closed_loop(root: Path) -> pd.DataFrame:
+    """Rollout success per threshold setting and noise, from the episode records under
+    ``root/<setting>/`` (the sweep's rollouts, `nostra evaluate` with one AdaMLI variant): setting,
+    noise, k, n, rate and its 95% Wilson interval."""
+    import numpy as np
+
+    from nostra.workflows.evaluation import wilson
+
+    rows = []
+    for setting in sorted(d for d in root.iterdir() if d.is_dir()) if root.is_dir() else []:
+        by_noise: dict[str, list[bool]] = {}
+        for f in sorted(setting.glob("**/records/*/*/*_seed*.npz")):
+            with np.load(f) as z:
+                by_noise.setdefault(f.parent.name, []).append(bool(z["success"]))
+        for noise, ok in by_noise.items():
+            lo, hi = wilson(sum(ok), len(ok))
+            rows.append({"setting": setting.name, "noise": noise, "k": sum(ok), "n": len(ok),
+                         "rate": sum(ok) / len(ok), "ci_low": lo, "ci_high": hi})
+    return pd.DataFrame(rows, columns=["setting", "noise", "k", "n", "rate", "ci_low", "ci_high"])
+
+
+def with_success(sweep: pd.DataFrame, rollouts: pd.DataFrame) -> pd.DataFrame:
+    """The sweep table with columns success_<noise> (the rate) and success_<noise>_low / _high (its
+    interval) per rollout noise, matched on the setting (the analysis folder's first part, e.g. s0-fo20-fc3)."""
+    if not len(sweep) or not len(rollouts):
+        return sweep
+    from nostra.noise import NOISES
+
+    out = sweep.assign(setting=sweep.analysis.str.split("/").str[0])
+    for noise in sorted(set(rollouts.noise), key=lambda n: (NOISES.index(n) if n in NOISES else len(NOISES), n)):
+        g = rollouts[rollouts.noise == noise].set_index("setting")
+        for col, src in (("", "rate"), ("_low", "ci_low"), ("_high", "ci_high")):
+            out[f"success_{noise}{col}"] = out.setting.map(g[src])
+    return out.drop(columns="setting")
+
+
 def sweep_table(analyses: list[dict]) -> pd.DataFrame:
     """One row per analysis with AdaMLI's thresholds and its detection over every modality: the
     threshold sensitivity when the analyses differ in their thresholds (empty otherwise)."""
@@ -84,15 +120,16 @@ def sweep_table(analyses: list[dict]) -> pd.DataFrame:
 
 
 def sweep_figure(sweep: pd.DataFrame, path: Path) -> None:
-    """Precision, recall and false imagination against f_o, one line per f_c (per noise)."""
+    """Precision, recall, false imagination (and closed-loop success per rollout noise, where the
+    sweep ran rollouts) against f_o, one line per f_c (per noise)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     x, line = ("f_o", "f_c") if {"f_o", "f_c"} <= set(sweep.columns) else (sweep.columns[2], None)
-    metrics = ["precision", "recall", "false_imagination"]
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.4), sharex=True)
+    metrics = ["precision", "recall", "false_imagination"] + _success_columns(sweep)
+    fig, axes = plt.subplots(1, len(metrics), figsize=(4 * len(metrics), 3.4), sharex=True)
     for ax, metric in zip(axes, metrics):
         for key, g in sweep.groupby(["noise", line] if line else ["noise"]):
             g = g.sort_values(x)
@@ -103,6 +140,10 @@ def sweep_figure(sweep: pd.DataFrame, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _success_columns(sweep: pd.DataFrame) -> list[str]:
+    return [c for c in sweep.columns if c.startswith("success_") and not c.endswith(("_low", "_high"))]
 
 
 def _score(x) -> str:
@@ -138,14 +179,21 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
                   for r in g.itertuples()]
         lines.append("")
     if sweep is not None and len(sweep):
-        varied = [c for c in sweep.columns if c not in ("analysis", "noise", "precision", "recall", "false_imagination")]
+        success = _success_columns(sweep)
+        varied = [c for c in sweep.columns if c not in ("analysis", "noise", "precision", "recall", "false_imagination")
+                  and not c.startswith("success_")]
         lines += ["## AdaMLI's thresholds (sensitivity)", "",
                   "Detection over every modality per threshold setting (the others at the paper's values); "
-                  "false imagination on the clean demos. `adamli_sweep.png` plots it.", "",
-                  "| noise | " + " | ".join(varied) + " | precision | recall | false imagination |",
-                  "|---" * (len(varied) + 4) + "|"]
-        lines += ["| " + " | ".join([r.noise, *(f"{getattr(r, k):g}" for k in varied)]) +
-                  f" | {r.precision:.2f} | {r.recall:.2f} | {100 * r.false_imagination:.1f}% |" for r in sweep.itertuples()]
+                  "false imagination on the clean demos"
+                  + ("; closed-loop success of BC-NOSTRA + AdaMLI with those thresholds, % over the rollouts "
+                     "[95% Wilson interval]" if success else "") + ". `adamli_sweep.png` plots it.", "",
+                  "| noise | " + " | ".join(varied + ["precision", "recall", "false imagination"] +
+                                            [f"closed-loop success, {c[8:]}" for c in success]) + " |",
+                  "|---" * (len(varied) + 4 + len(success)) + "|"]
+        cell = lambda r, c: "–" if pd.isna(r[c]) else f"{100 * r[c]:.0f} [{100 * r[c + '_low']:.0f}, {100 * r[c + '_high']:.0f}]"  # noqa: E731
+        lines += ["| " + " | ".join([r["noise"], *(f"{r[k]:g}" for k in varied)]) +
+                  f" | {r.precision:.2f} | {r.recall:.2f} | {100 * r.false_imagination:.1f}% |" +
+                  "".join(f" {cell(r, c)} |" for c in success) for _, r in sweep.iterrows()]
         lines += ["", "![AdaMLI threshold sensitivity](adamli_sweep.png)", ""]
     if figures:
         lines += ["## Per-modality KL over one held-out episode (Figure 5)", "",
@@ -160,6 +208,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--command", default="")
     ap.add_argument("--no-figures", action="store_true", help="leave out each analysis's one-episode figure")
+    ap.add_argument("--rollouts", type=Path, default=None,
+                    help="the threshold sweep's rollouts (<dir>/<setting>/**/records): closed-loop success per setting")
     args = ap.parse_args(argv)
     analyses = load(args.analyses)
     kl, detect = kl_table(analyses), detection_table(analyses)
@@ -168,6 +218,8 @@ def main(argv: list[str] | None = None) -> None:
     detect.to_csv(args.out / "detection.csv", index=False)
     command = args.command or f"python -m nostra.workflows.offline_report --analyses {args.analyses} --out {args.out}"
     figures, sweep = ({} if args.no_figures else copy_figures(analyses, args.out)), sweep_table(analyses)
+    if args.rollouts is not None:
+        sweep = with_success(sweep, closed_loop(args.rollouts))
     if len(sweep):
         sweep.to_csv(args.out / "adamli_sweep.csv", index=False)
         sweep_figure(sweep, args.out / "adamli_sweep.png")
