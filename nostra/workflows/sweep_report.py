@@ -1,0 +1,160 @@
+"""NOSTRA's sensitivity to beta and gamma at a profile (scripts/cpu_sweep.sh): per setting, success
+of 50 clean and 50 masked rollouts (closed loop, + MLI, + AdaMLI, every setting on the same initial
+states), the per-modality KL on the held-out demos and AdaMLI's detection under mask, as one table
+(sweep.md, sweep.csv) and one figure (sweep.png).
+
+    python -m nostra.workflows.sweep_report --evaluations data/runs/cpu/evaluate/liftd1-sweep \
+        --offline data/runs/cpu/offline/liftd1-sweep --out reports/cpu/liftd1/sweep
+
+A setting is a folder named b<beta>_g<gamma> under both roots (rollout records under
+<setting>/<noise>/**/records, the offline analysis under <setting>/mask/offline/offline.json)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from nostra.workflows.evaluation import wilson
+from nostra.workflows.variants import LABELS
+
+SETTING = re.compile(r"b(?P<beta>[^_]+)_g(?P<gamma>.+)")
+CELLS = [("none", "nostra"), ("mask", "nostra"), ("mask", "nostra_mli"), ("mask", "nostra_adamli")]
+
+
+def parse(name: str) -> dict:
+    m = SETTING.fullmatch(name)
+    if not m:
+        raise ValueError(f"sweep setting folder {name!r}: expected b<beta>_g<gamma>, e.g. b1e-4_g0.1")
+    return {"beta": float(m["beta"]), "gamma": float(m["gamma"])}
+
+
+def success(evaluations: Path) -> pd.DataFrame:
+    """Success per (setting, noise, variant): k, n, rate and its 95% Wilson interval."""
+    runs: dict[tuple, list[bool]] = {}
+    for f in sorted(evaluations.glob("*/*/**/records/*/*/*_seed*.npz")):
+        setting = f.relative_to(evaluations).parts[0]
+        with np.load(f) as z:
+            runs.setdefault((setting, f.parent.name, f.stem.rsplit("_seed", 1)[0]), []).append(bool(z["success"]))
+    rows = []
+    for (setting, noise, variant), ok in runs.items():
+        lo, hi = wilson(sum(ok), len(ok))
+        rows.append({"setting": setting, "noise": noise, "variant": variant, "k": sum(ok), "n": len(ok),
+                     "rate": sum(ok) / len(ok), "ci_low": lo, "ci_high": hi})
+    return pd.DataFrame(rows, columns=["setting", "noise", "variant", "k", "n", "rate", "ci_low", "ci_high"])
+
+
+def offline(root: Path) -> pd.DataFrame:
+    """Per setting: KL per modality and in all (nats per step, held-out demos), AdaMLI's detection
+    over every modality under mask, and its false imagination on the clean demos."""
+    rows = []
+    for f in sorted(root.glob("*/mask/offline/offline.json")):
+        a = json.loads(f.read_text())
+        kl = a["kl_nats"]
+        rows.append({"setting": f.relative_to(root).parts[0], **{f"kl {m}": v for m, v in kl.items()},
+                     "kl total": sum(kl.values()), "precision": a["detect"]["all"]["precision"],
+                     "recall": a["detect"]["all"]["recall"], "false_imagination": a["false_imagination"]["all"]})
+    return pd.DataFrame(rows)
+
+
+def sweep_table(evaluations: Path, offline_root: Path) -> pd.DataFrame:
+    """One row per setting: beta, gamma, success per cell (rate, low, high), KL and detection."""
+    s = success(evaluations)
+    settings = sorted(set(s.setting) | ({p.name for p in offline_root.iterdir() if p.is_dir()}
+                                        if offline_root.is_dir() else set()))
+    if not settings:
+        raise FileNotFoundError(f"no sweep setting under {evaluations} or {offline_root}: run scripts/cpu_sweep.sh first")
+    table = pd.DataFrame([{"setting": n, **parse(n)} for n in settings])
+    for noise, variant in CELLS:
+        c = s[(s.noise == noise) & (s.variant == variant)].set_index("setting")
+        for col, src in (("", "rate"), (" low", "ci_low"), (" high", "ci_high"), (" n", "n")):
+            table[f"{variant} {noise}{col}"] = table.setting.map(c[src])
+    off = offline(offline_root) if offline_root.is_dir() else pd.DataFrame()
+    if len(off):
+        table = table.merge(off, on="setting", how="left")
+    return table.sort_values(["gamma", "beta"]).reset_index(drop=True)
+
+
+def _pct(r, col: str) -> str:
+    return "–" if pd.isna(r.get(col)) else f"{100 * r[col]:.0f} [{100 * r[col + ' low']:.0f}, {100 * r[col + ' high']:.0f}]"
+
+
+def markdown(table: pd.DataFrame, header: list[str], paper: tuple[float, float] = (1e-4, 0.1)) -> str:
+    kl_cols = [c for c in table.columns if c.startswith("kl ") and c != "kl total"]
+    cells = [f"{v} {n}" for n, v in CELLS]
+    lines = ["# NOSTRA's sensitivity to beta and gamma", "", *header, "",
+             "Success in % [95% Wilson interval] on the same initial states for every setting (best checkpoint); "
+             "KL in nats per step on the clean held-out demos; AdaMLI's detection (precision / recall, every "
+             "modality) on the held-out demos under mask, and its false imagination on the clean ones. "
+             f"The paper's setting (beta {paper[0]:g}, gamma {paper[1]:g}) is in bold.", "",
+             "| beta | gamma | " + " | ".join(f"{LABELS[v]}, {n}" for n, v in CELLS) +
+             " | KL total | " + " | ".join(f"KL {c[3:]}" for c in kl_cols) + " | AdaMLI P / R | false imagination |",
+             "|---" * (2 + len(CELLS) + 1 + len(kl_cols) + 2) + "|"]
+    for _, r in table.iterrows():
+        mark = "**" if (r.beta, r.gamma) == paper else ""
+        kl = [f"{r[c]:.1f}" if c in r and not pd.isna(r[c]) else "–" for c in ["kl total", *kl_cols]]
+        det = ("–", "–") if pd.isna(r.get("precision", np.nan)) else \
+            (f"{r.precision:.2f} / {r.recall:.2f}", f"{100 * r.false_imagination:.1f}%")
+        lines.append(f"| {mark}{r.beta:g}{mark} | {mark}{r.gamma:g}{mark} | " + " | ".join(_pct(r, c) for c in cells) +
+                     " | " + " | ".join(kl) + f" | {det[0]} | {det[1]} |")
+    lines += ["", "![sensitivity to beta and gamma](sweep.png)", ""]
+    return "\n".join(lines)
+
+
+def figure(table: pd.DataFrame, path: Path, paper: tuple[float, float] = (1e-4, 0.1)) -> None:
+    """Success (clean and mask cells) and total KL against beta (gamma at the paper's) and against
+    gamma (beta at the paper's)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex="col")
+    for col, (x, fixed, other) in enumerate((("beta", "gamma", paper[1]), ("gamma", "beta", paper[0]))):
+        t = table[np.isclose(table[fixed], other)].sort_values(x)
+        for noise, variant in CELLS:
+            key = f"{variant} {noise}"
+            if key in t and t[key].notna().any():
+                axes[0, col].errorbar(t[x], 100 * t[key], yerr=[100 * (t[key] - t[key + " low"]),
+                                                                100 * (t[key + " high"] - t[key])],
+                                      marker="o", capsize=3, label=f"{LABELS[variant]}, {noise}")
+        if "kl total" in t:
+            axes[1, col].plot(t[x], t["kl total"], marker="o", color="k")
+        axes[0, col].set_ylabel("success (%)"), axes[0, col].set_ylim(-5, 105)
+        axes[1, col].set_ylabel("KL (nats per step)"), axes[1, col].set_xlabel(f"{x} ({fixed} = {other:g})")
+        if x == "beta":
+            axes[0, col].set_xscale("log"), axes[1, col].set_xscale("log")
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--evaluations", type=Path, required=True, help="<runs>/evaluate/<task>-sweep")
+    ap.add_argument("--offline", type=Path, required=True, help="<runs>/offline/<task>-sweep")
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--command", default="")
+    ap.add_argument("--wall-seconds", type=float, default=None)
+    args = ap.parse_args(argv)
+    from nostra.workflows.cpu_report import machine
+
+    table = sweep_table(args.evaluations, args.offline)
+    header = [f"- Command: `{args.command}`" if args.command else f"- Evaluations: `{args.evaluations}`",
+              f"- Machine: {machine()}"]
+    if args.wall_seconds:
+        header.append(f"- Wall time of the command: {args.wall_seconds / 60:.0f} min")
+    args.out.mkdir(parents=True, exist_ok=True)
+    table.to_csv(args.out / "sweep.csv", index=False)
+    figure(table, args.out / "sweep.png")
+    (args.out / "sweep.md").write_text(markdown(table, header))
+    print(args.out / "sweep.md")
+
+
+if __name__ == "__main__":
+    main()

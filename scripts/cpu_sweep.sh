@@ -1,0 +1,73 @@
+#!/usr/bin/env bash
+# NOSTRA's sensitivity to its KL weight beta and KL balance gamma at the CPU profile (issue 11, what
+# the paper's reviewers asked): one setting varied at a time around the paper's (beta 1e-4, gamma
+# 0.1, which is make cpu's BC-NOSTRA run of that seed, reused). Each new setting trains BC-NOSTRA
+# for MINUTES (make cpu's budget), then its best checkpoint runs 50 clean episodes (closed loop) and
+# 50 under mask (closed loop, + MLI, + AdaMLI) on the evaluation seeds, and an offline analysis of
+# its held-out demos under mask (per-modality KL, AdaMLI's detection). Report:
+# reports/cpu/<task>/sweep/ (sweep.md, sweep.csv, sweep.png). ~40 min a setting here.
+#
+# Resumable: a finished training (run.json) or a cell already written is kept.
+#   TASK=liftd1 SEED=0 BETAS="1e-5 1e-3 1e-2" GAMMAS="0.5 0.9" bash scripts/cpu_sweep.sh
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export PATH="$PWD/.venv/bin:$PATH"
+TASK=${TASK:-liftd1}
+SEED=${SEED:-0}
+MINUTES=${MINUTES:-30}
+BETAS=${BETAS:-1e-5 1e-3 1e-2}
+GAMMAS=${GAMMAS:-0.5 0.9}
+BETA0=1e-4 GAMMA0=0.1   # the paper's (conf/model/nostra.yaml's defaults)
+RUNS=data/runs/cpu
+COMMON="profile=cpu task=$TASK paths.runs=$RUNS"
+NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
+EVAL=$RUNS/evaluate/$TASK-sweep
+OFFLINE=$RUNS/offline/$TASK-sweep
+WINDOWS=$(python -c "import yaml; print(yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows'])" | tr -d ' ')
+start=$(date +%s)
+log() { echo "[$(date +%H:%M:%S)] $*"; }
+
+settings="b${BETA0}_g${GAMMA0}"
+for b in $BETAS; do settings="$settings b${b}_g${GAMMA0}"; done
+for g in $GAMMAS; do settings="$settings b${BETA0}_g${g}"; done
+
+for s in $settings; do
+  beta=${s%_g*}; beta=${beta#b}; gamma=${s#*_g}
+  if [ "$s" = "b${BETA0}_g${GAMMA0}" ]; then
+    run=pretrain-nostra-$NAME-s$SEED   # the paper's setting: make cpu's run
+    [ -f "$RUNS/train/$run/run.json" ] || TASK=$TASK SEEDS=$SEED MODELS=nostra MINUTES=$MINUTES bash scripts/cpu.sh
+  else
+    run=sweep-nostra-$NAME-$s-s$SEED
+    if [ -f "$RUNS/train/$run/run.json" ]; then log "train $run: finished before, kept"; else
+      log "train $run (beta $beta, gamma $gamma; $MINUTES min budget)"
+      nostra train $COMMON model=nostra seed=$SEED "data.collections=[${TASK}_cpu]" train.max_minutes=$MINUTES \
+        model.loss.beta=$beta model.loss.gamma=$gamma train.run_name=$run "train.rollout.modes=[closed]"
+    fi
+  fi
+  ckpt=$RUNS/train/$run/policy.ckpt   # evaluate.checkpoint=best: its checkpoints/best.ckpt
+  for noise in none mask; do
+    out=$EVAL/$s/$noise
+    [ -f "$out/success.csv" ] && { log "evaluate $s $noise: done before, kept"; continue; }
+    keep="nostra"; [ $noise = mask ] && keep="nostra nostra_mli nostra_adamli"
+    args=""
+    for v in lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli; do
+      case " $keep " in *" $v "*) args="$args evaluate.variants.$v.checkpoint=$ckpt" ;;
+                        *) args="$args evaluate.variants.$v=null" ;; esac
+    done
+    log "evaluate $s $noise:$keep"
+    nostra evaluate $COMMON seed=$SEED evaluate.checkpoint=best "evaluate.noises=[$noise]" $args \
+      evaluate.offline.enabled=false evaluate.out_dir=$out
+  done
+  out=$OFFLINE/$s/mask
+  if [ -f "$out/offline/offline.json" ]; then log "offline $s: done before, kept"; else
+    log "offline $s mask"
+    nostra evaluate $COMMON seed=$SEED evaluate.rollouts=false \
+      evaluate.offline.checkpoint=$RUNS/train/$run/checkpoints/best.ckpt \
+      "evaluate.offline.collections=[${TASK}_cpu]" evaluate.offline.noise=mask evaluate.offline.episodes=20 \
+      "evaluate.offline.windows=$WINDOWS" evaluate.offline.setting=good_view evaluate.out_dir=$out
+  fi
+done
+
+python -m nostra.workflows.sweep_report --evaluations "$EVAL" --offline "$OFFLINE" --out "reports/cpu/$TASK/sweep" \
+  --command "TASK=$TASK SEED=$SEED MINUTES=$MINUTES BETAS=\"$BETAS\" GAMMAS=\"$GAMMAS\" bash scripts/cpu_sweep.sh" \
+  --wall-seconds $(( $(date +%s) - start ))
