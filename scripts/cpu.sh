@@ -8,6 +8,7 @@
 # continues from last.ckpt (a finished run ends at once), so a killed run continues where it stopped.
 #   TASK=stackd1 MINUTES=60 HORIZON=300 SEEDS="0 1" MODELS="lstm nostra" make cpu
 #   OBS=rgbd make cpu    # the policies see agentview depth too (profile cpu_rgbd, Table 2), in data/runs/cpu-rgbd
+#   CAPACITY=matched MODELS="lstm rssm nostra" make cpu   # BC-LSTM and BC-RSSM at NOSTRA's parameter count
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -16,12 +17,8 @@ SEEDS=${SEEDS:-0}
 MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
 HORIZON=${HORIZON:-}   # rollout horizon in steps; empty: the profile's (200, enough for Lift)
-OBS=${OBS:-rgb}        # the observation set: rgb (two cameras + proprioception: Table 1) | rgbd (+ agentview depth: Table 2)
-case $OBS in
-  rgb) PROFILE=cpu RUNS=data/runs/cpu OUT=reports/cpu/$TASK ;;
-  rgbd) PROFILE=cpu_rgbd RUNS=data/runs/cpu-rgbd OUT=reports/cpu-rgbd/$TASK ;;
-  *) echo "cpu.sh: unknown OBS=$OBS; valid: rgb, rgbd" >&2; exit 2 ;;
-esac
+source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
+OUT=$REPORTS/$TASK
 COMMON="profile=$PROFILE task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
@@ -45,9 +42,19 @@ for seed in $SEEDS; do
       log "train $model seed $seed: finished before, kept"
       continue
     fi
-    log "train $model seed $seed ($MINUTES min budget)"
+    width=""
+    if [ "$CAPACITY" = matched ]; then
+      case $model in
+        lstm|rssm) width=$(python -m nostra.workflows.capacity --profile $PROFILE --task $TASK --override $model) ;;
+        *) ref=data/runs/cpu${SUFFIX%-matched}/train/pretrain-$model-$NAME-s$seed  # the reference: the configured run
+           [ -f "$ref/run.json" ] || { echo "cpu.sh: CAPACITY=matched needs $ref: run it first with CAPACITY=configured" >&2; exit 2; }
+           mkdir -p "$RUNS/train" && ln -sfn "$(realpath "$ref")" "$RUNS/train/pretrain-$model-$NAME-s$seed"
+           log "train $model seed $seed: the configured run, linked"; continue ;;
+      esac
+    fi
+    log "train $model seed $seed ($MINUTES min budget${width:+, $width})"
     nostra train $COMMON model=$model seed=$seed "data.collections=[${TASK}_cpu]" train.max_minutes=$MINUTES \
-      "train.rollout.modes=[closed]"
+      "train.rollout.modes=[closed]" $width
   done
 done
 
@@ -81,6 +88,6 @@ for seed in $SEEDS; do
 done
 
 python -m nostra.workflows.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS make cpu" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY make cpu" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/index.md"

@@ -12,6 +12,8 @@
 # Table 2 (multimodal noise, AdaMLI): the policies see agentview depth too (OBS=rgbd, scripts/cpu.sh), and
 # the noises are rgb (both cameras masked), rgbd (+ depth) and all (+ proprioception zeroed):
 #   OBS=rgbd SEEDS=0 MODELS="lstm nostra" make cpu-claims     # reports/cpu-rgbd/<task>/claims/
+# Capacity-matched (BC-LSTM and BC-RSSM at NOSTRA's parameter count; reports/cpu-matched/<task>/claims/):
+#   CAPACITY=matched SEEDS=0 MODELS="lstm rssm nostra" NOISES="none mask blind" make cpu-claims
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -20,20 +22,18 @@ SEEDS=${SEEDS:-0 1}
 MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
 HORIZON=${HORIZON:-}
-OBS=${OBS:-rgb}
+source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
+OUT=$REPORTS/$TASK/claims
 case $OBS in
-  rgb) PROFILE=cpu RUNS=data/runs/cpu OUT=reports/cpu/$TASK/claims
-    NOISES=${NOISES:-none mask cam_jitter table_tex clean_windows blind} ;;
-  rgbd) PROFILE=cpu_rgbd RUNS=data/runs/cpu-rgbd OUT=reports/cpu-rgbd/$TASK/claims
-    NOISES=${NOISES:-none rgb rgbd all blind} ;;
-  *) echo "cpu_claims.sh: unknown OBS=$OBS; valid: rgb, rgbd" >&2; exit 2 ;;
+  rgb) NOISES=${NOISES:-none mask cam_jitter table_tex clean_windows blind} ;;
+  rgbd) NOISES=${NOISES:-none rgb rgbd all blind} ;;
 esac
 CHECKPOINTS=${CHECKPOINTS:-best last}
 EVAL=$RUNS/evaluate/$TASK
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
-TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES HORIZON=$HORIZON OBS=$OBS bash scripts/cpu.sh
+TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES HORIZON=$HORIZON OBS=$OBS CAPACITY=$CAPACITY bash scripts/cpu.sh
 
 # the variants each noise needs: under none an imagining variant is its closed-loop policy (nothing to
 # imagine), under clean_windows the closed-loop ones see clean frames (= none); blind keeps the
@@ -99,7 +99,13 @@ for seed in $SEEDS; do
   done
 done
 
-python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS make cpu-claims" \
+note=()
+if [ "$CAPACITY" = matched ]; then  # the widths the runs were trained with, in the report's header
+  widths=$(for m in $MODELS; do case $m in lstm|rssm)
+    python -m nostra.workflows.capacity --profile $PROFILE --task $TASK --override $m ;; esac; done | tr '\n' ' ')
+  note=(--note "Capacity-matched: BC-LSTM and BC-RSSM at BC-NOSTRA's parameter count (${widths% }); BC-NOSTRA as configured")
+fi
+python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" "${note[@]}" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY make cpu-claims" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/claims.md"

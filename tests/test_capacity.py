@@ -38,3 +38,14 @@ def test_the_table_matches_lstm_and_rssm_and_says_so(configs):
 def test_a_target_out_of_reach_fails_naming_the_knob(configs):
     with pytest.raises(ValueError, match=r"lstm: net.rnn_hidden=4 gives \d+ parameters, fewer than"):
         match(configs["lstm"], 10**9, MODS, "rnn_hidden", hi=4)
+
+
+def test_override_prints_the_train_override_that_the_table_lists(capsys):
+    """`--override lstm` (what CAPACITY=matched make cpu trains with) is the table's matched width."""
+    from nostra.workflows.capacity import configs_for, main
+
+    main(["--profile", "ci", "--task", "lift", "--override", "lstm"])
+    printed = capsys.readouterr().out.strip()
+    configs, modalities = configs_for("ci", "lift", ["nostra", "lstm"])
+    row = next(r for r in table(configs, modalities) if r["policy"] == "lstm")
+    assert printed == f"model.net.rnn_hidden={row['matched']}"

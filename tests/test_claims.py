@@ -110,3 +110,13 @@ def test_table2_noises_get_their_columns_pairs_and_claims(tmp_path):
     assert lines.count("| not measured |") == 4  # mask's precondition and its three claims
     report = write_report(tmp_path, tmp_path / "out")
     assert "### Table 2, training seed pooled" in report and "| none | rgb | rgbd | all | blind |" in report
+
+
+def test_header_states_the_command_and_notes(tmp_path, capsys):
+    from nostra.workflows.claims import main
+
+    _scenario(tmp_path / "ev", mli_mask=[True] * 10, lstm_mask=[False] * 10)
+    main(["--evaluations", str(tmp_path / "ev"), "--out", str(tmp_path / "out"), "--command", "CAPACITY=matched make cpu-claims",
+          "--note", "Capacity-matched: model.net.rnn_hidden=457"])
+    text = (tmp_path / "out/claims.md").read_text()
+    assert "- Command: `CAPACITY=matched make cpu-claims`" in text and "- Capacity-matched: model.net.rnn_hidden=457" in text

@@ -6,7 +6,7 @@ joint latent (``latent_dim``, per modality) that give NOSTRA's count, so a compa
     python -m nostra.workflows.capacity --profile cpu --task liftd1 --out reports/cpu/liftd1/capacity.md
 
 The matched widths are overrides for `nostra train` (e.g. `model.net.rnn_hidden=<n>`); the file
-lists them with the counts."""
+lists them with the counts, and `--override lstm` prints just one (what `CAPACITY=matched make cpu` trains with)."""
 
 from __future__ import annotations
 
@@ -100,7 +100,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--task", default="liftd1")
     ap.add_argument("--policies", nargs="+", default=["nostra", "rssm", "lstm", "diffusion"])
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--override", choices=sorted(KNOBS), default=None,
+                    help="print only this policy's matching `nostra train` override (for scripts)")
     args = ap.parse_args(argv)
+    if args.override:
+        configs, modalities = configs_for(args.profile, args.task, ["nostra", args.override])
+        target = count("nostra", asdict(configs["nostra"].net), modalities)
+        width, _ = match(configs[args.override], target, modalities, KNOBS[args.override])
+        print(f"model.net.{KNOBS[args.override]}={width}")
+        return
     if "nostra" not in args.policies:
         ap.error("--policies must include nostra: the counts are matched to it")
     configs, modalities = configs_for(args.profile, args.task, args.policies)

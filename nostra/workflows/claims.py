@@ -228,6 +228,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--command", default=None, help="the command that made the evaluations (for the header)")
     ap.add_argument("--wall-seconds", type=float, default=None)
+    ap.add_argument("--note", action="append", default=[], help="a line for the header (e.g. the matched widths)")
     args = ap.parse_args(argv)
     from nostra.workflows.cpu_report import machine
 
@@ -240,6 +241,7 @@ def main(argv: list[str] | None = None) -> None:
                       f"cells' records, copied, not re-run: {', '.join(f'`{c}`' for c in copied)}")
     if args.wall_seconds:
         header.append(f"- Wall time of the command: {args.wall_seconds / 60:.0f} min")
+    header += [f"- {n}" for n in args.note]
     print(write_report(args.evaluations, args.out, header + [""]))
 
 
