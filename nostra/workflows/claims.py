@@ -1,7 +1,8 @@
 """The paper's claims at CPU scale (`make cpu-claims`): Table 1 (and Table 2's multimodal noises,
-`OBS=rgbd`) per training seed and pooled, the controls, the paired comparisons and a verdict per claim, all read from the episode records that
-`nostra evaluate` wrote (records/<task>/<noise>/<variant>_seed<k>.npz under any folder of
-<runs>/evaluate/<task>/s<training seed>/<checkpoint>/).
+`OBS=rgbd`) per training seed and pooled, the controls, the paired comparisons and a verdict per
+claim, all read from the episode records that `nostra evaluate` wrote
+(records/<task>/<noise>/<variant>_seed<k>.npz under any folder of <runs>/evaluate/<task>/s<training
+seed>/<checkpoint>/).
 
     python -m nostra.workflows.claims --evaluations data/runs/cpu/evaluate/liftd1 --out reports/cpu/liftd1/claims
 
@@ -122,8 +123,8 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
     def above(a: str, noise: str) -> tuple[str, bool, list]:  # a above BC-LSTM under noise, paired
         row = p[(p.a == a) & (p.b == "lstm") & (p.noise == noise)] if len(p) else p
         gain, pv = (row["diff"].iloc[0], row["p"].iloc[0]) if len(row) else (np.nan, np.nan)
-        return (f"{LABELS[a]} above BC-LSTM under {noise} with McNemar p < 0.05 "
-                + (f"({gain * 100:+.0f} points, p = {pv:.2g})" if len(row) else "(–)"), gain > 0 and pv < 0.05, [gain, pv])
+        numbers = f"({gain * 100:+.0f} points, p = {pv:.2g})" if len(row) else "(–)"
+        return f"{LABELS[a]} above BC-LSTM under {noise} with McNemar p < 0.05 {numbers}", gain > 0 and pv < 0.05, [gain, pv]
 
     def within(a: str, noise: str) -> tuple[str, bool, list]:  # a under noise within 10 points of clean NOSTRA
         return (f"{LABELS[a]} under {noise} within {WITHIN:.0%} of its clean success "
@@ -161,7 +162,8 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
             if not measured(xs):
                 verdict = "not measured"
             else:
-                verdict = ("shown" if ok else "not shown") if testable else f"not testable ({'shown' if ok else 'not shown'} as measured)"
+                seen = "shown" if ok else "not shown"
+                verdict = seen if testable else f"not testable ({seen} as measured)"
             lines.append(f"| {text} | {verdict} |")
     return lines
 

@@ -71,23 +71,12 @@ def detection_table(analyses: list[dict]) -> pd.DataFrame:
 
 def closed_loop(root: Path) -> pd.DataFrame:
     """Rollout success per threshold setting and noise, from the episode records under
-    ``root/<setting>/`` (the sweep's rollouts, `nostra evaluate` with one AdaMLI variant): setting,
-    noise, k, n, rate and its 95% Wilson interval."""
-    import numpy as np
+    ``root/<setting>/`` (the sweep's rollouts of BC-NOSTRA + AdaMLI): setting, noise, k, n, rate and
+    its 95% Wilson interval."""
+    from nostra.workflows.sweep_report import success
 
-    from nostra.workflows.evaluation import wilson
-
-    rows = []
-    for setting in sorted(d for d in root.iterdir() if d.is_dir()) if root.is_dir() else []:
-        by_noise: dict[str, list[bool]] = {}
-        for f in sorted(setting.glob("**/records/*/*/*_seed*.npz")):
-            with np.load(f) as z:
-                by_noise.setdefault(f.parent.name, []).append(bool(z["success"]))
-        for noise, ok in by_noise.items():
-            lo, hi = wilson(sum(ok), len(ok))
-            rows.append({"setting": setting.name, "noise": noise, "k": sum(ok), "n": len(ok),
-                         "rate": sum(ok) / len(ok), "ci_low": lo, "ci_high": hi})
-    return pd.DataFrame(rows, columns=["setting", "noise", "k", "n", "rate", "ci_low", "ci_high"])
+    s = success(root)
+    return s[s.variant == "nostra_adamli"].drop(columns="variant").reset_index(drop=True)
 
 
 def with_success(sweep: pd.DataFrame, rollouts: pd.DataFrame) -> pd.DataFrame:
@@ -190,7 +179,8 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
                   "| noise | " + " | ".join(varied + ["precision", "recall", "false imagination"] +
                                             [f"closed-loop success, {c[8:]}" for c in success]) + " |",
                   "|---" * (len(varied) + 4 + len(success)) + "|"]
-        cell = lambda r, c: "–" if pd.isna(r[c]) else f"{100 * r[c]:.0f} [{100 * r[c + '_low']:.0f}, {100 * r[c + '_high']:.0f}]"  # noqa: E731
+        def cell(r, c: str) -> str:
+            return "–" if pd.isna(r[c]) else f"{100 * r[c]:.0f} [{100 * r[c + '_low']:.0f}, {100 * r[c + '_high']:.0f}]"
         lines += ["| " + " | ".join([r["noise"], *(f"{r[k]:g}" for k in varied)]) +
                   f" | {r.precision:.2f} | {r.recall:.2f} | {100 * r.false_imagination:.1f}% |" +
                   "".join(f" {cell(r, c)} |" for c in success) for _, r in sweep.iterrows()]

@@ -34,9 +34,10 @@ def parse(name: str) -> dict:
 
 
 def success(evaluations: Path) -> pd.DataFrame:
-    """Success per (setting, noise, variant): k, n, rate and its 95% Wilson interval."""
+    """Success per (setting, noise, variant) from the episode records under
+    ``evaluations/<setting>/``: k, n, rate and its 95% Wilson interval."""
     runs: dict[tuple, list[bool]] = {}
-    for f in sorted(evaluations.glob("*/*/**/records/*/*/*_seed*.npz")):
+    for f in sorted(evaluations.glob("*/**/records/*/*/*_seed*.npz")):
         setting = f.relative_to(evaluations).parts[0]
         with np.load(f) as z:
             runs.setdefault((setting, f.parent.name, f.stem.rsplit("_seed", 1)[0]), []).append(bool(z["success"]))
@@ -67,7 +68,8 @@ def sweep_table(evaluations: Path, offline_root: Path) -> pd.DataFrame:
     settings = sorted(set(s.setting) | ({p.name for p in offline_root.iterdir() if p.is_dir()}
                                         if offline_root.is_dir() else set()))
     if not settings:
-        raise FileNotFoundError(f"no sweep setting under {evaluations} or {offline_root}: run scripts/cpu_sweep.sh first")
+        raise FileNotFoundError(f"no sweep setting under {evaluations} or {offline_root}: "
+                                "run scripts/cpu_sweep.sh first")
     table = pd.DataFrame([{"setting": n, **parse(n)} for n in settings])
     for noise, variant in CELLS:
         c = s[(s.noise == noise) & (s.variant == variant)].set_index("setting")
@@ -80,7 +82,9 @@ def sweep_table(evaluations: Path, offline_root: Path) -> pd.DataFrame:
 
 
 def _pct(r, col: str) -> str:
-    return "–" if pd.isna(r.get(col)) else f"{100 * r[col]:.0f} [{100 * r[col + ' low']:.0f}, {100 * r[col + ' high']:.0f}]"
+    if pd.isna(r.get(col)):
+        return "–"
+    return f"{100 * r[col]:.0f} [{100 * r[col + ' low']:.0f}, {100 * r[col + ' high']:.0f}]"
 
 
 def markdown(table: pd.DataFrame, header: list[str], paper: tuple[float, float] = (1e-4, 0.1)) -> str:
