@@ -77,11 +77,19 @@ variants() {  # $1 = the noise; prints the overrides that drop the variants this
     case " $keep " in *" $v "*) ;; *) printf 'evaluate.variants.%s=null ' "$v" ;; esac
   done
 }
+all_same_as_best() { local m; for m in $MODELS; do same_as_best $m $1 || return 1; done; }
 for seed in $SEEDS; do
   for c in best:none best:blind last:none; do
     ck=${c%%:*} noise=${c##*:}
     out=$RUNS/evaluate/$TASK/s$seed/$ck/$noise
     if [ -f "$out/success.csv" ]; then log "evaluate seed $seed $ck $noise: done before, kept"; continue; fi
+    best=$RUNS/evaluate/$TASK/s$seed/best/$noise
+    if [ $ck = last ] && [ -f "$best/success.csv" ] && all_same_as_best $seed; then
+      mkdir -p "$(dirname "$out")" && cp -r "$best" "$out"
+      echo "Every model's last checkpoint is its best (the final check was the best): a copy of best/$noise." \
+        > "$out/SAME_AS_BEST.txt"
+      log "evaluate seed $seed last $noise: the same checkpoints as best, its records copied"; continue
+    fi
     log "evaluate seed $seed checkpoint=$ck noise=$noise"
     nostra evaluate $COMMON seed=$seed evaluate.checkpoint=$ck "evaluate.noises=[$noise]" $(variants "$noise") \
       evaluate.offline.enabled=false evaluate.out_dir=$out

@@ -59,15 +59,8 @@ needed() {  # $1 = noise
 ALL="lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli"
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 COMMON="profile=$PROFILE task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
-# a model whose last checkpoint is its best (the final check was the best) has the same weights under
+# a model whose last checkpoint is its best (same_as_best, scripts/cpu_setup.sh) has the same weights under
 # both names: its last cells are copies of its best cells (folder `same-as-best`), not a second run
-same_as_best() {  # $1 = model, $2 = training seed
-  python - "$RUNS/train/pretrain-$1-$NAME-s$2/run.json" <<'PY'
-import json, sys
-run = json.load(open(sys.argv[1]))
-sys.exit(0 if ((run.get("rollouts") or {}).get("best") or {}).get("step") == run["steps"] else 1)
-PY
-}
 model_of() { case $1 in nostra*) echo nostra ;; rssm*) echo rssm ;; *) echo "$1" ;; esac; }
 reuse_best() {  # $1 = seed, $2 = noise, $3... = variants: copy each variant's best records into last
   local seed=$1 noise=$2 v src dst; shift 2

@@ -2,7 +2,8 @@
 #   OBS=rgb (two cameras + proprioception: Table 1; default) | rgbd (+ agentview depth: Table 2, profile cpu_rgbd)
 #   CAPACITY=configured (default) | matched (BC-LSTM's and BC-RSSM's widths give NOSTRA's parameter count,
 #            nostra.workflows.capacity; NOSTRA, the reference, is the configured run, linked, not retrained)
-# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched]) and REPORTS (reports/cpu[-rgbd][-matched]).
+# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched]) and REPORTS (reports/cpu[-rgbd][-matched]);
+# defines same_as_best.
 OBS=${OBS:-rgb}
 CAPACITY=${CAPACITY:-configured}
 case $OBS in
@@ -17,3 +18,13 @@ case $CAPACITY in
 esac
 RUNS=data/runs/cpu$SUFFIX
 REPORTS=reports/cpu$SUFFIX
+
+# 0 when a model's last checkpoint is its best (the final in-training check was the best): the same
+# weights under both names, so a last cell can be a copy of the best cell, not a second run
+same_as_best() {  # $1 = model, $2 = training seed; needs NAME (the task's name)
+  python - "$RUNS/train/pretrain-$1-$NAME-s$2/run.json" <<'PY'
+import json, sys
+run = json.load(open(sys.argv[1]))
+sys.exit(0 if ((run.get("rollouts") or {}).get("best") or {}).get("step") == run["steps"] else 1)
+PY
+}

@@ -35,6 +35,12 @@ def test_cpu_report(tmp_path):
     assert "cameras imagined" in text and "| 0 | BC-NOSTRA | – | – | – | – | not trained |" in text
     assert "| 0 | BC-LSTM | 3000 | 30.0 | 5.0 (17%) | 3 | 2000 (90%, 10) |" in text
     assert (out / "learning_curves.png").stat().st_size > 0
+    assert "copies the best cell" not in text
+
+    (runs / "evaluate/liftd1/s0/last/none").mkdir(parents=True)  # scripts/cpu.sh's copy when last = best
+    (runs / "evaluate/liftd1/s0/last/none/SAME_AS_BEST.txt").write_text("a copy")
+    cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--out", str(out)])
+    assert "`s0/last/none` copies the best cell, not a second run" in (out / "index.md").read_text()
 
 
 def _records(folder, successes):

@@ -207,10 +207,14 @@ def main(argv: list[str] | None = None) -> None:
     curve_figure(curves, out / "learning_curves.png")
     episodes = int(df["episodes"].max()) if len(df) else 0
     wall = f"{args.wall_seconds / 60:.0f} min" if args.wall_seconds else "see the training table"
+    copies = sorted(str(p.parent.relative_to(runs / "evaluate" / args.task))
+                    for p in (runs / "evaluate" / args.task).glob("s*/last/*/SAME_AS_BEST.txt"))
     text = [f"# CPU profile: {task}", "",
             f"- Command: `{args.command}`", f"- Machine: {machine()}", f"- Wall time of the command: {wall}",
             f"- Training seeds: {', '.join(map(str, args.seeds))}; demos: expert seeds from 0; "
             f"rollouts: seeds 1000-{1000 + max(episodes, 1) - 1} (never used by demos), the same for every variant",
+            *([f"- Last = best checkpoint for every model (the final check was the best): "
+               f"{', '.join(f'`{c}`' for c in copies)} copies the best cell, not a second run"] if copies else []),
             "", "## Success", "",
             f"Success rate in % over {episodes} episodes per cell, 95% Wilson interval in brackets. "
             "*best*: the checkpoint with the best in-training rollout success (the peak, as the paper and "
