@@ -24,21 +24,18 @@ ROOT=$RUNS/offline/$TASK-adamli
 ROLLOUTS=$RUNS/evaluate/$TASK-adamli
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 WINDOWS=$(python -c "import yaml; print(yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows'])" | tr -d ' ')
-for fo in $F_O; do
-  for fc in $F_C; do
-    out=$ROOT/s$SEED-fo$fo-fc$fc/$NOISE
-    [ -f "$out/offline/offline.json" ] && { echo "f_o=$fo f_c=$fc: done before, kept"; continue; }
-    echo "[$(date +%H:%M:%S)] offline seed $SEED $NOISE f_o=$fo f_c=$fc"
-    nostra evaluate profile=cpu task=$TASK paths.runs=$RUNS seed=$SEED evaluate.rollouts=false \
-      evaluate.offline.checkpoint=$RUNS/train/pretrain-nostra-$NAME-s$SEED/checkpoints/best.ckpt \
-      "evaluate.offline.collections=[${TASK}_cpu]" evaluate.offline.noise=$NOISE evaluate.offline.episodes=20 \
-      "evaluate.offline.windows=$WINDOWS" "evaluate.offline.adamli={f_o: $fo, f_c: $fc}" \
-      evaluate.offline.setting=good_view evaluate.out_dir=$out
-  done
-done
 drop=$(for v in lstm diffusion rssm rssm_li nostra nostra_mli; do printf 'evaluate.variants.%s=null ' $v; done)
 for fo in $F_O; do
   for fc in $F_C; do
+    out=$ROOT/s$SEED-fo$fo-fc$fc/$NOISE
+    if [ -f "$out/offline/offline.json" ]; then echo "f_o=$fo f_c=$fc: done before, kept"; else
+      echo "[$(date +%H:%M:%S)] offline seed $SEED $NOISE f_o=$fo f_c=$fc"
+      nostra evaluate profile=cpu task=$TASK paths.runs=$RUNS seed=$SEED evaluate.rollouts=false \
+        evaluate.offline.checkpoint=$RUNS/train/pretrain-nostra-$NAME-s$SEED/checkpoints/best.ckpt \
+        "evaluate.offline.collections=[${TASK}_cpu]" evaluate.offline.noise=$NOISE evaluate.offline.episodes=20 \
+        "evaluate.offline.windows=$WINDOWS" "evaluate.offline.adamli={f_o: $fo, f_c: $fc}" \
+        evaluate.offline.setting=good_view evaluate.out_dir=$out
+    fi
     for noise in $ROLLOUT_NOISES; do
       out=$ROLLOUTS/s$SEED-fo$fo-fc$fc/$noise
       [ -f "$out/success.csv" ] && { echo "rollouts f_o=$fo f_c=$fc $noise: done before, kept"; continue; }
