@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell sha256sum pyproject.toml | cut -c1-16)
 
-.PHONY: demo test bench cpu cpu-recipe cpu-claims clean
+.PHONY: demo test bench cpu cpu-recipe cpu-claims cpu-transfer clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || python3 -m venv $(VENV)
@@ -25,6 +25,9 @@ cpu-recipe: $(STAMP)
 
 cpu-claims: $(STAMP)
 	@bash scripts/cpu_claims.sh
+
+cpu-transfer: $(STAMP)
+	@bash scripts/cpu_transfer.sh
 
 test: $(STAMP)
 	$(PY) -m pytest -q

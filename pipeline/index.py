@@ -1,4 +1,4 @@
-"""`nostra index`: embed every collection of the store (cached beside it) and update the faiss
+"""`nostra index [retrieval.collections=[...]]`: embed every collection of the store (or those listed) (cached beside it) and update the faiss
 indices; new collections are added, changed ones rebuilt, unchanged ones left alone."""
 
 from __future__ import annotations
@@ -15,7 +15,9 @@ def _app(cfg) -> None:
     store = Store(cfg.data.store)
     if not store.collections():
         raise SystemExit(f"nostra index: the store {store.path} holds no collection; run `nostra ingest` first")
-    summary = index_store(store, cfg.retrieval.index_dir, cfg.retrieval.progress)
+    collections = cfg.retrieval.collections
+    summary = index_store(store, cfg.retrieval.index_dir, cfg.retrieval.progress,
+                          list(collections) if collections is not None else None)
     print(json.dumps({"index_dir": cfg.retrieval.index_dir, **summary}))
 
 

@@ -23,11 +23,17 @@ MODES = ("obj_skill", "all")
 KINDS = ("obj_skill", "scene")
 
 
-def index_store(store, index_dir: str | os.PathLike, progress: bool = True) -> dict:
-    """Embed every collection (cached beside the store) and bring one index per kind up to date."""
+def index_store(store, index_dir: str | os.PathLike, progress: bool = True,
+                collections: list[str] | None = None) -> dict:
+    """Embed ``collections`` (default: every collection; cached beside the store) and bring one index
+    per kind up to date: the pool that ``select`` draws from."""
+    missing = sorted(set(collections or ()) - set(store.collections()))
+    if missing:
+        raise ValueError(f"retrieval.collections {missing} are not in the store {store.path}; "
+                         f"it has {store.collections()}")
     summary = {}
     for kind in KINDS:
-        emb = embed_store(store, kind, progress=progress)
+        emb = embed_store(store, kind, collections, progress=progress)
         spaces = {(e.kind, e.model) for e in emb.values()}
         if len(spaces) > 1:  # collections without camera metadata are embedded visually
             by = {s: [n for n, e in emb.items() if (e.kind, e.model) == s] for s in spaces}

@@ -23,17 +23,7 @@ COMMON="profile=$PROFILE task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_hor
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
-raw=data/raw/${TASK}_cpu.hdf5
-if [ ! -f "$raw" ]; then
-  log "generate $raw"
-  nostra generate $COMMON generate.collection=${TASK}_cpu
-fi
-if [ -d "data/store.zarr/${TASK}_cpu" ]; then
-  log "ingest $raw: the store has ${TASK}_cpu"
-else
-  log "ingest $raw"
-  nostra ingest $COMMON "ingest.sources=[$raw]" ingest.progress=false
-fi
+collection ${TASK}_cpu $TASK
 
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 for seed in $SEEDS; do

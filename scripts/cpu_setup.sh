@@ -3,7 +3,7 @@
 #   CAPACITY=configured (default) | matched (BC-LSTM's and BC-RSSM's widths give NOSTRA's parameter count,
 #            nostra.workflows.capacity; NOSTRA, the reference, is the configured run, linked, not retrained)
 # Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched]) and REPORTS (reports/cpu[-rgbd][-matched]);
-# defines same_as_best.
+# defines collection and same_as_best.
 OBS=${OBS:-rgb}
 CAPACITY=${CAPACITY:-configured}
 case $OBS in
@@ -27,4 +27,14 @@ import json, sys
 run = json.load(open(sys.argv[1]))
 sys.exit(0 if ((run.get("rollouts") or {}).get("best") or {}).get("step") == run["steps"] else 1)
 PY
+}
+
+# a demo collection in the store: generated (unless its file exists; generation also skips finished
+# demos) and ingested (unless the store has it)
+collection() {  # $1 = collection, $2 = task, $3... = generate overrides
+  local name=$1 task=$2 raw=data/raw/$1.hdf5; shift 2
+  [ -f "$raw" ] || { echo "[$(date +%H:%M:%S)] generate $raw"
+    nostra generate profile=$PROFILE task=$task generate.collection=$name "$@"; }
+  if [ -d "data/store.zarr/$name" ]; then echo "[$(date +%H:%M:%S)] ingest $raw: the store has $name"
+  else echo "[$(date +%H:%M:%S)] ingest $raw"; nostra ingest profile=$PROFILE "ingest.sources=[$raw]" ingest.progress=false; fi
 }

@@ -13,7 +13,7 @@ export PATH="$PWD/.venv/bin:$PATH"
 TASK=${TASK:-liftd1}
 SEED=${SEED:-0}
 NOISES=${NOISES:-mask}
-RUNS=data/runs/cpu
+OBS=rgb CAPACITY=configured source scripts/cpu_setup.sh   # PROFILE=cpu, RUNS=data/runs/cpu, collection
 ROOT=$RUNS/offline/$TASK
 COLL=${TASK}_occluded_cpu
 COMMON="profile=cpu task=$TASK paths.runs=$RUNS"
@@ -28,11 +28,7 @@ run = json.load(open(sys.argv[1]))
 print(((run.get("rollouts") or {}).get("best") or {}).get("step") or run["steps"])
 PY
 )
-raw=data/raw/$COLL.hdf5
-[ -f "$raw" ] || { log "generate $raw (occluded agent view, the good view's seeds)"; \
-  nostra generate $COMMON generate.collection=$COLL generate.variation.occluded=1.0; }
-if [ -d "data/store.zarr/$COLL" ]; then log "ingest: the store has $COLL"; else
-  log "ingest $raw"; nostra ingest $COMMON "ingest.sources=[$raw]" ingest.progress=false; fi
+collection $COLL $TASK generate.variation.occluded=1.0   # the good view's seeds: the same initial states
 if [ -f "$RUNS/train/$RUN/run.json" ]; then log "train $RUN: finished before, kept"; else
   log "train $RUN: $STEPS steps (the good-view checkpoint's)"
   nostra train $COMMON model=nostra seed=$SEED "data.collections=[$COLL]" train.run_name=$RUN \

@@ -73,3 +73,13 @@ def test_bad_input(store):
         select(s, index, "target", 4, mode="camera")
     with pytest.raises(IndexMismatchError, match="built with embedding model"):
         EpisodeIndex.load(index / "obj_skill", model="another-model", kind="obj_skill")
+
+
+def test_index_only_the_listed_collections(store, tmp_path):
+    s, _ = store  # a pool without lift_near: retrieval for the target can only draw from lift_far and door
+    index_store(s, tmp_path / "pool", progress=False, collections=["target", "lift_far", "door"])
+    m = select(s, tmp_path / "pool", "target", budget=8, mode="obj_skill")
+    assert {e["collection"] for e in m["episodes"]} <= {"lift_far", "door"}
+    assert "lift_far" in {e["collection"] for e in m["episodes"]}
+    with pytest.raises(ValueError, match=r"retrieval.collections \['nope'\] are not in the store"):
+        index_store(s, tmp_path / "bad", progress=False, collections=["target", "nope"])
