@@ -1,5 +1,6 @@
-"""`nostra index [retrieval.collections=[...]]`: embed every collection of the store (or those listed) (cached beside it) and update the faiss
-indices; new collections are added, changed ones rebuilt, unchanged ones left alone."""
+"""`nostra index [retrieval.collections=[...]]`: embed every collection of the store (or those
+listed: the pool retrieval draws from; cached beside the store) and update the faiss indices; new
+collections are added, changed ones rebuilt, unchanged ones left alone."""
 
 from __future__ import annotations
 
