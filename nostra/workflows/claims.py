@@ -30,7 +30,7 @@ ROWS = ["lstm", "diffusion", "rssm", "rssm_li", "nostra", "nostra_mli", "nostra_
 # (a, b, noises): a - b, paired on the same initial states
 PAIRS = [("nostra_mli", "nostra", TABLE1_NOISES[1:]), ("nostra_mli", "lstm", TABLE1_NOISES),
          ("nostra_mli", "diffusion", TABLE1_NOISES), ("nostra_mli", "rssm_li", TABLE1_NOISES[1:]),
-         ("nostra_adamli", "nostra_mli", TABLE1_NOISES[1:])] + [
+         ("nostra_adamli", "nostra_mli", TABLE1_NOISES[1:] + TABLE2_NOISES)] + [
     ("nostra_adamli", b, TABLE2_NOISES) for b in ("nostra", "lstm", "diffusion", "rssm")]
 CLEAN_MIN, BLIND_MAX, WITHIN = 0.85, 0.20, 0.10  # the issue's bars: clean >= 85%, blind <= 20%, within 10 points
 POOLED = "pooled"
@@ -142,13 +142,16 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
             (f"blind control <= {BLIND_MAX:.0%} (BC-LSTM {pct(rate('lstm', 'blind'))}, MLI "
              f"{pct(rate('nostra_mli', 'blind'))})", max(rate("lstm", "blind"), rate("nostra_mli", "blind")) <= BLIND_MAX,
              [rate("lstm", "blind"), rate("nostra_mli", "blind")])]
-    # (noise, its claims): Table 1's, then Table 2's once any of its cells exist
-    claims = [("mask", [within("nostra_mli", "mask"), above("nostra_mli", "mask"),
-                        (f"AdaMLI within {WITHIN:.0%} of oracle MLI under mask ({pct(rate('nostra_adamli', 'mask'))} vs "
-                         f"{pct(rate('nostra_mli', 'mask'))})",
-                         abs(rate("nostra_adamli", "mask") - rate("nostra_mli", "mask")) <= WITHIN,
-                         [rate("nostra_adamli", "mask"), rate("nostra_mli", "mask")])])]
-    if set(TABLE2_NOISES) & set(s.index.get_level_values("noise")):
+    # (noise, its claims): Table 1's unless only Table 2 ran (OBS=rgbd), then Table 2's once any of its cells exist
+    ran = set(s.index.get_level_values("noise"))
+    claims = []
+    if not ran & set(TABLE2_NOISES) or ran & set(TABLE1_NOISES[1:]):
+        claims = [("mask", [within("nostra_mli", "mask"), above("nostra_mli", "mask"),
+                            (f"AdaMLI within {WITHIN:.0%} of oracle MLI under mask ({pct(rate('nostra_adamli', 'mask'))} "
+                             f"vs {pct(rate('nostra_mli', 'mask'))})",
+                             abs(rate("nostra_adamli", "mask") - rate("nostra_mli", "mask")) <= WITHIN,
+                             [rate("nostra_adamli", "mask"), rate("nostra_mli", "mask")])])]
+    if ran & set(TABLE2_NOISES):
         claims += [(n, [within("nostra_adamli", n), above("nostra_adamli", n)]) for n in TABLE2_NOISES]
     measured = lambda xs: not any(np.isnan(x) for x in xs)  # noqa: E731
     holds = lambda row: row[1] and measured(row[2])  # noqa: E731
@@ -202,7 +205,8 @@ def write_report(evaluations: Path, out: Path, header: list[str] = ()) -> str:
     success.to_csv(out / "table1.csv", index=False)
     pairs.to_csv(out / "paired.csv", index=False)
     fir.to_csv(out / "false_imagination.csv", index=False)
-    seeds = sorted(set(success.seed) - {POOLED}, key=str) + [POOLED]
+    seeds = sorted(set(success.seed) - {POOLED}, key=str)
+    seeds = seeds + [POOLED] if len(seeds) > 1 else seeds  # one training seed: pooled is the same table
     ran = set(success.noise)
     tables = " and ".join(t for t, noises in (("Table 1", TABLE1_NOISES[1:]), ("Table 2", TABLE2_NOISES))
                           if ran & set(noises)) or "Clean and controls"
