@@ -228,6 +228,18 @@ def write_report(evaluations: Path, out: Path, header: list[str] = ()) -> str:
     return "\n".join(text)
 
 
+def header_lines(evaluations: Path, command: str | None, wall_seconds: float | None, notes: list[str],
+                 extra: list[str] = ()) -> list[str]:
+    """A report's header: the command, the machine, the evaluations, ``extra`` lines, the wall time, notes."""
+    from nostra.workflows.cpu_report import machine
+
+    header = [f"- Command: `{command}`"] if command else []
+    header += [f"- Machine: {machine()}", f"- Evaluations: `{evaluations}`", *extra]
+    if wall_seconds:
+        header.append(f"- Wall time of the command: {wall_seconds / 60:.0f} min")
+    return header + [f"- {n}" for n in notes] + [""]
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--evaluations", required=True, type=Path, help="<runs>/evaluate/<task>")
@@ -236,19 +248,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--wall-seconds", type=float, default=None)
     ap.add_argument("--note", action="append", default=[], help="a line for the header (e.g. the matched widths)")
     args = ap.parse_args(argv)
-    from nostra.workflows.cpu_report import machine
-
-    header = [f"- Machine: {machine()}", f"- Evaluations: `{args.evaluations}`"]
-    if args.command:
-        header.insert(0, f"- Command: `{args.command}`")
     copied = sorted(str(p.relative_to(args.evaluations)) for p in args.evaluations.glob("s*/last/*/same-as-best"))
-    if copied:
-        header.append("- Last checkpoint = best checkpoint (the final check was the best): those cells are the best "
-                      f"cells' records, copied, not re-run: {', '.join(f'`{c}`' for c in copied)}")
-    if args.wall_seconds:
-        header.append(f"- Wall time of the command: {args.wall_seconds / 60:.0f} min")
-    header += [f"- {n}" for n in args.note]
-    print(write_report(args.evaluations, args.out, header + [""]))
+    extra = ["- Last checkpoint = best checkpoint (the final check was the best): those cells are the best "
+             f"cells' records, copied, not re-run: {', '.join(f'`{c}`' for c in copied)}"] if copied else []
+    header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note, extra)
+    print(write_report(args.evaluations, args.out, header))
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nostra.workflows.claims import POOLED, _with_pooled, paired
+from nostra.workflows.claims import POOLED, _with_pooled, header_lines, paired
 from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
@@ -222,15 +222,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--wall-seconds", type=float, default=None)
     ap.add_argument("--note", action="append", default=[], help="a line for the header")
     args = ap.parse_args(argv)
-    from nostra.workflows.cpu_report import machine
-
-    header = [f"- Machine: {machine()}", f"- Evaluations: `{args.evaluations}`"]
-    if args.command:
-        header.insert(0, f"- Command: `{args.command}`")
-    if args.wall_seconds:
-        header.append(f"- Wall time of the command: {args.wall_seconds / 60:.0f} min")
-    header += [f"- {n}" for n in args.note]
-    print(write_report(args.evaluations, args.out, header + [""], args.target_demos))
+    header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note)
+    print(write_report(args.evaluations, args.out, header, args.target_demos))
 
 
 if __name__ == "__main__":
