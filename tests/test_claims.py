@@ -120,3 +120,30 @@ def test_header_states_the_command_and_notes(tmp_path, capsys):
           "--note", "Capacity-matched: model.net.rnn_hidden=457"])
     text = (tmp_path / "out/claims.md").read_text()
     assert "- Command: `CAPACITY=matched make cpu-claims`" in text and "- Capacity-matched: model.net.rnn_hidden=457" in text
+
+
+def test_adamli_detection_per_modality_and_gripper_phase(tmp_path):
+    """AdaMLI's closed-loop imagination per modality: recall inside the windows, split by the previous
+    action's gripper command, and imagination outside them; a diagnostic noise gets its column."""
+    rec = tmp_path / "s0" / "best" / "proprio_zero" / "cell" / "records" / "LiftD1" / "proprio_zero"
+    rec.mkdir(parents=True)
+    noise = np.array([False, True, True, True, True, False])
+    grip = np.array([-1, -1, 1, 1, 1, 1.0])  # closed from step 3 on (the command of step 2)
+    action = np.zeros((6, 7), np.float32)
+    action[:, -1] = grip
+    gripper = np.array([False, True, True, False, False, True])  # misses while closed, one false imagination
+    for k in range(2):
+        np.savez_compressed(rec / f"nostra_adamli_seed{1000 + k}.npz", success=k == 0, steps=6, noise=noise,
+                            action=action, **{"imagined/robot0_gripper_qpos": gripper,
+                                              "imagined/robot0_eef_pos": noise})
+        np.savez_compressed(rec / f"nostra_mli_seed{1000 + k}.npz", success=True, steps=6)
+    from nostra.workflows.claims import adamli_detection
+
+    det = adamli_detection(tmp_path).set_index(["seed", "modality"])
+    g = det.loc[("pooled", "robot0_gripper_qpos")]
+    assert g.recall == 0.5 and g.recall_open == 1.0 and g.recall_closed == 0.0
+    assert g.outside == 0.5 and det.loc[("0", "robot0_eef_pos")].recall == 1.0
+    report = write_report(tmp_path, tmp_path / "out")
+    assert "| proprio_zero | robot0_gripper_qpos | yes | 50% | 100% | 0% | 50% |" in report
+    assert "| BC-NOSTRA + AdaMLI | 50 [" in report and "| proprio_zero |" in report.split("### Paired")[1]
+    assert (tmp_path / "out" / "adamli_detection.csv").is_file()

@@ -26,12 +26,14 @@ from nostra.workflows.variants import LABELS
 TABLE1_NOISES = ["none", "mask", "cam_jitter", "table_tex"]
 TABLE2_NOISES = ["rgb", "rgbd", "all"]  # multimodal noise (cameras, + depth, + proprioception), AdaMLI's table
 CONTROL_NOISES = ["clean_windows", "blind"]
+# single-modality noises, run to tell which part of a multimodal noise AdaMLI fails on (no claim rests on them)
+DIAGNOSTIC_NOISES = ["depth_mask", "proprio_zero", "proprio_stuck"]
 ROWS = ["lstm", "diffusion", "rssm", "rssm_li", "nostra", "nostra_mli", "nostra_adamli"]
 # (a, b, noises): a - b, paired on the same initial states
 PAIRS = [("nostra_mli", "nostra", TABLE1_NOISES[1:]), ("nostra_mli", "lstm", TABLE1_NOISES),
          ("nostra_mli", "diffusion", TABLE1_NOISES), ("nostra_mli", "rssm_li", TABLE1_NOISES[1:]),
-         ("nostra_adamli", "nostra_mli", TABLE1_NOISES[1:] + TABLE2_NOISES)] + [
-    ("nostra_adamli", b, TABLE2_NOISES) for b in ("nostra", "lstm", "diffusion", "rssm")]
+         ("nostra_adamli", "nostra_mli", TABLE1_NOISES[1:] + TABLE2_NOISES + DIAGNOSTIC_NOISES)] + [
+    ("nostra_adamli", b, TABLE2_NOISES + DIAGNOSTIC_NOISES) for b in ("nostra", "lstm", "diffusion", "rssm")]
 CLEAN_MIN, BLIND_MAX, WITHIN = 0.85, 0.20, 0.10  # the issue's bars: clean >= 85%, blind <= 20%, within 10 points
 POOLED = "pooled"
 
@@ -51,6 +53,55 @@ def load_records(evaluations: Path) -> pd.DataFrame:
             rows[key] = (bool(z["success"]), share)  # a cell evaluated twice: the later folder wins
     index = pd.MultiIndex.from_tuples(rows, names=["seed", "checkpoint", "noise", "variant", "episode"])
     return pd.DataFrame(list(rows.values()), index=index, columns=["success", "imagined_share"]).reset_index()
+
+
+def adamli_detection(evaluations: Path) -> pd.DataFrame:
+    """AdaMLI in closed loop, per (checkpoint, seed, noise, modality): the share of the noise windows' steps
+    on which it imagined the modality (its recall), split by whether the previous action commanded the
+    gripper closed (a zeroed gripper reading looks like a closed gripper), and the share of steps outside
+    the windows (every step of a clean episode) on which it imagined it anyway."""
+    steps = {}
+    for f in sorted(evaluations.glob("s*/*/**/records/*/*/nostra_adamli_seed*.npz")):
+        seed_dir = next(p for p in f.parents if p.parent == evaluations)
+        with np.load(f) as z:
+            n = int(z["steps"])
+            noisy = z["noise"][:n] if "noise" in z.files else np.zeros(n, bool)
+            closed = np.r_[False, z["action"][: n - 1, -1] > 0] if "action" in z.files else np.zeros(n, bool)
+            for k in (k for k in z.files if k.startswith("imagined/")):  # a cell evaluated twice: the later wins
+                key = (int(seed_dir.name[1:]), f.relative_to(seed_dir).parts[0], f.parent.name, k[9:], f.stem)
+                imagined = z[k][:n].astype(bool)
+                steps[key] = (imagined, noisy[: len(imagined)], closed[: len(imagined)])
+    rows = []
+    for (seed, ck, noise, modality, _), (imagined, noisy, closed) in steps.items():
+        for sd in (str(seed), POOLED):
+            rows.append({"checkpoint": ck, "seed": sd, "noise": noise, "modality": modality,
+                         "noisy": noisy.sum(), "hit": (imagined & noisy).sum(),
+                         "noisy_open": (noisy & ~closed).sum(), "hit_open": (imagined & noisy & ~closed).sum(),
+                         "noisy_closed": (noisy & closed).sum(), "hit_closed": (imagined & noisy & closed).sum(),
+                         "clean": (~noisy).sum(), "false": (imagined & ~noisy).sum()})
+    if not rows:
+        return pd.DataFrame()
+    t = pd.DataFrame(rows).groupby(["checkpoint", "seed", "noise", "modality"]).sum().reset_index()
+    ratio = lambda a, b: t[a] / t[b].where(t[b] > 0)  # noqa: E731
+    return t.assign(recall=ratio("hit", "noisy"), recall_open=ratio("hit_open", "noisy_open"),
+                    recall_closed=ratio("hit_closed", "noisy_closed"), outside=ratio("false", "clean"))
+
+
+def detection_markdown(det: pd.DataFrame, checkpoint: str) -> list[str]:
+    from nostra.noise import NoiseSchedule
+
+    d = det[(det.checkpoint == checkpoint) & (det.seed == POOLED)] if len(det) else det
+    if not len(d):
+        return []
+    pct = lambda x: "–" if np.isnan(x) else f"{100 * x:.0f}%"  # noqa: E731
+    order = {n: i for i, n in enumerate(TABLE1_NOISES + TABLE2_NOISES + DIAGNOSTIC_NOISES + CONTROL_NOISES)}
+    lines = ["| noise | modality | corrupted by it | imagined in the windows | gripper open | gripper closed "
+             "| imagined outside them |", "|---|---|---|---|---|---|---|"]
+    for r in sorted(d.itertuples(), key=lambda r: (order.get(r.noise, len(order)), r.noise, r.modality)):
+        hit = r.modality in NoiseSchedule(r.noise, []).keys
+        lines.append(f"| {r.noise} | {r.modality} | {'yes' if hit else 'no'} | {pct(r.recall)} | {pct(r.recall_open)} "
+                     f"| {pct(r.recall_closed)} | {pct(r.outside)} |")
+    return lines
 
 
 def _with_pooled(df: pd.DataFrame) -> pd.DataFrame:
@@ -177,7 +228,7 @@ def _cell(r) -> str:
 
 def success_markdown(success: pd.DataFrame, checkpoint: str, seed: str) -> list[str]:
     s = success[(success.checkpoint == checkpoint) & (success.seed == seed)]
-    noises = [n for n in TABLE1_NOISES + TABLE2_NOISES + CONTROL_NOISES if n in set(s.noise)]
+    noises = [n for n in TABLE1_NOISES + TABLE2_NOISES + DIAGNOSTIC_NOISES + CONTROL_NOISES if n in set(s.noise)]
     lines = ["| Method | " + " | ".join(noises) + " |", "|---" * (len(noises) + 1) + "|"]
     for v in [v for v in ROWS if v in set(s.variant)]:
         r = s[s.variant == v].set_index("noise")
@@ -205,6 +256,9 @@ def write_report(evaluations: Path, out: Path, header: list[str] = ()) -> str:
     success.to_csv(out / "table1.csv", index=False)
     pairs.to_csv(out / "paired.csv", index=False)
     fir.to_csv(out / "false_imagination.csv", index=False)
+    det = adamli_detection(evaluations)
+    if len(det):
+        det.to_csv(out / "adamli_detection.csv", index=False)
     seeds = sorted(set(success.seed) - {POOLED}, key=str)
     seeds = seeds + [POOLED] if len(seeds) > 1 else seeds  # one training seed: pooled is the same table
     ran = set(success.noise)
@@ -224,6 +278,12 @@ def write_report(evaluations: Path, out: Path, header: list[str] = ()) -> str:
         if len(f):
             text += [f"AdaMLI false imagination on clean episodes: {100 * f['mean'].iloc[0]:.0f}% of steps "
                      f"({int(f['count'].iloc[0])} episodes).", ""]
+        if lines := detection_markdown(det, ck):
+            text += ["### AdaMLI's imagination per modality in closed loop (pooled)", "",
+                     "The share of the noise windows' steps on which AdaMLI imagined each modality (its recall where "
+                     "the noise corrupts that modality), split by the gripper command of the previous action, and the "
+                     "share of the other steps (every step of a clean episode) on which it imagined it anyway.",
+                     "", *lines, ""]
     (out / "claims.md").write_text("\n".join(text))
     return "\n".join(text)
 
