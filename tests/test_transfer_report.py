@@ -37,10 +37,12 @@ def test_tables_pairs_and_verdicts(tmp_path):
     scratch = p.loc[("finetune-n10", "nostra", "cotrain-target_only", "nostra")]  # pretraining's gain at 10 demos
     assert scratch["diff"] == pytest.approx(0.4)
     assert ("finetune-n20", "nostra", "cotrain-target_only", "nostra") not in p.index  # 20 demos: no scratch run
+    assert p.loc[("cotrain-all", "nostra", "cotrain-obj_skill", "nostra"), "diff"] == pytest.approx(0.6)  # +all's step
     lines = "\n".join(verdicts(pairs))
-    assert "| BC-NOSTRA fine-tunes above BC-RSSM | finetune-n10 | +80" in lines and lines.count("| shown |") == 2
+    assert "| BC-NOSTRA fine-tunes above BC-RSSM | finetune-n10 | +80" in lines and lines.count("| shown |") == 3
     assert "| BC-NOSTRA fine-tunes above BC-LSTM | finetune-n10 | +5 [+0, +15], p = 1 | not shown (higher, not significant) |" in lines
     assert "obj_skill retrieval improves BC-NOSTRA over target only | cotrain-obj_skill | +0 [+0, +0], p = 1 | not shown |" in lines
+    assert "| all retrieval improves BC-NOSTRA over obj_skill | cotrain-all | +60 [+40, +80], p = 0.00049 | shown |" in lines
 
     report = write_report(tmp_path, tmp_path / "out", target_demos=10)
     assert "| BC-NOSTRA | 80 [58, 92] | 100 [84, 100] |" in report  # Table 4's row: 10 and 20 demos
