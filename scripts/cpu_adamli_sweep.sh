@@ -9,6 +9,8 @@
 # here); ROLLOUT_NOISES="" skips them. Resumable: an analysis or a rollout cell already written is kept.
 #   TASK=liftd1 SEED=0 F_O="5 10 20 40" F_C="1.5 3 6" NOISE=mask bash scripts/cpu_adamli_sweep.sh
 #   ROLLOUT_NOISES="none mask" EPISODES=50 F_O="5 20 80" F_C=3 bash scripts/cpu_adamli_sweep.sh
+# OBS=rgbd sweeps the Table 2 policy (make cpu-claims OBS=rgbd), e.g. f_c under zeroed proprioception:
+#   OBS=rgbd NOISE=proprio_zero ROLLOUT_NOISES="none proprio_zero" F_O=20 F_C="3 6 12" bash scripts/cpu_adamli_sweep.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -19,7 +21,7 @@ F_C=${F_C:-1.5 3 6}
 NOISE=${NOISE:-mask}
 ROLLOUT_NOISES=${ROLLOUT_NOISES-none mask}
 EPISODES=${EPISODES:-50}
-RUNS=data/runs/cpu
+source scripts/cpu_setup.sh   # OBS -> PROFILE, RUNS, REPORTS
 ROOT=$RUNS/offline/$TASK-adamli
 ROLLOUTS=$RUNS/evaluate/$TASK-adamli
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
@@ -30,7 +32,7 @@ for fo in $F_O; do
     out=$ROOT/s$SEED-fo$fo-fc$fc/$NOISE
     if [ -f "$out/offline/offline.json" ]; then echo "f_o=$fo f_c=$fc: done before, kept"; else
       echo "[$(date +%H:%M:%S)] offline seed $SEED $NOISE f_o=$fo f_c=$fc"
-      nostra evaluate profile=cpu task=$TASK paths.runs=$RUNS seed=$SEED evaluate.rollouts=false \
+      nostra evaluate profile=$PROFILE task=$TASK paths.runs=$RUNS seed=$SEED evaluate.rollouts=false \
         evaluate.offline.checkpoint=$RUNS/train/pretrain-nostra-$NAME-s$SEED/checkpoints/best.ckpt \
         "evaluate.offline.collections=[${TASK}_cpu]" evaluate.offline.noise=$NOISE evaluate.offline.episodes=20 \
         "evaluate.offline.windows=$WINDOWS" "evaluate.offline.adamli={f_o: $fo, f_c: $fc}" \
@@ -40,12 +42,12 @@ for fo in $F_O; do
       out=$ROLLOUTS/s$SEED-fo$fo-fc$fc/$noise
       [ -f "$out/success.csv" ] && { echo "rollouts f_o=$fo f_c=$fc $noise: done before, kept"; continue; }
       echo "[$(date +%H:%M:%S)] rollouts seed $SEED $noise f_o=$fo f_c=$fc ($EPISODES episodes)"
-      nostra evaluate profile=cpu task=$TASK paths.runs=$RUNS seed=$SEED evaluate.checkpoint=best \
+      nostra evaluate profile=$PROFILE task=$TASK paths.runs=$RUNS seed=$SEED evaluate.checkpoint=best \
         "evaluate.noises=[$noise]" evaluate.episodes=$EPISODES $drop \
         "evaluate.variants.nostra_adamli.adamli={f_o: $fo, f_c: $fc}" evaluate.offline.enabled=false evaluate.out_dir=$out
     done
   done
 done
-python -m nostra.workflows.offline_report --analyses "$ROOT" --out "reports/cpu/$TASK/adamli_sweep" --no-figures \
+python -m nostra.workflows.offline_report --analyses "$ROOT" --out "$REPORTS/$TASK/adamli_sweep" --no-figures \
   --rollouts "$ROLLOUTS" \
-  --command "TASK=$TASK SEED=$SEED F_O=\"$F_O\" F_C=\"$F_C\" NOISE=$NOISE ROLLOUT_NOISES=\"$ROLLOUT_NOISES\" EPISODES=$EPISODES bash scripts/cpu_adamli_sweep.sh"
+  --command "OBS=$OBS TASK=$TASK SEED=$SEED F_O=\"$F_O\" F_C=\"$F_C\" NOISE=$NOISE ROLLOUT_NOISES=\"$ROLLOUT_NOISES\" EPISODES=$EPISODES bash scripts/cpu_adamli_sweep.sh"
