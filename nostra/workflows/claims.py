@@ -28,6 +28,7 @@ TABLE2_NOISES = ["rgb", "rgbd", "all"]  # multimodal noise (cameras, + depth, + 
 CONTROL_NOISES = ["clean_windows", "blind"]
 # single-modality noises, run to tell which part of a multimodal noise AdaMLI fails on (no claim rests on them)
 DIAGNOSTIC_NOISES = ["depth_mask", "proprio_zero", "proprio_stuck"]
+NOISE_ORDER = TABLE1_NOISES + TABLE2_NOISES + DIAGNOSTIC_NOISES + CONTROL_NOISES  # the tables' columns
 ROWS = ["lstm", "diffusion", "rssm", "rssm_li", "nostra", "nostra_mli", "nostra_adamli"]
 # (a, b, noises): a - b, paired on the same initial states
 PAIRS = [("nostra_mli", "nostra", TABLE1_NOISES[1:]), ("nostra_mli", "lstm", TABLE1_NOISES),
@@ -38,18 +39,26 @@ CLEAN_MIN, BLIND_MAX, WITHIN = 0.85, 0.20, 0.10  # the issue's bars: clean >= 85
 POOLED = "pooled"
 
 
+def _cell_of(f: Path, evaluations: Path) -> tuple[int, str, str]:
+    """(training seed, checkpoint, noise) of a record <evaluations>/s<seed>/<checkpoint>/**/<noise>/<file>."""
+    seed_dir = next(p for p in f.parents if p.parent == evaluations)
+    return int(seed_dir.name[1:]), f.relative_to(seed_dir).parts[0], f.parent.name
+
+
+def _pct(x: float) -> str:
+    return "–" if np.isnan(x) else f"{100 * x:.0f}%"
+
+
 def load_records(evaluations: Path) -> pd.DataFrame:
     """One row per episode: seed (training), checkpoint, noise, variant, episode, success, and for
     clean episodes the share of steps on which any modality was imagined."""
     rows = {}
     for f in sorted(evaluations.glob("s*/*/**/records/*/*/*_seed*.npz")):
-        seed_dir = next(p for p in f.parents if p.parent == evaluations)
-        checkpoint = f.relative_to(seed_dir).parts[0]
         variant, episode = f.stem.rsplit("_seed", 1)
         with np.load(f) as z:
             imagined = [z[k] for k in z.files if k.startswith("imagined/")]
             share = float(np.any(imagined, axis=0).mean()) if imagined else np.nan
-            key = (int(seed_dir.name[1:]), checkpoint, f.parent.name, variant, int(episode))
+            key = (*_cell_of(f, evaluations), variant, int(episode))
             rows[key] = (bool(z["success"]), share)  # a cell evaluated twice: the later folder wins
     index = pd.MultiIndex.from_tuples(rows, names=["seed", "checkpoint", "noise", "variant", "episode"])
     return pd.DataFrame(list(rows.values()), index=index, columns=["success", "imagined_share"]).reset_index()
@@ -62,13 +71,12 @@ def adamli_detection(evaluations: Path) -> pd.DataFrame:
     the windows (every step of a clean episode) on which it imagined it anyway."""
     steps = {}
     for f in sorted(evaluations.glob("s*/*/**/records/*/*/nostra_adamli_seed*.npz")):
-        seed_dir = next(p for p in f.parents if p.parent == evaluations)
         with np.load(f) as z:
             n = int(z["steps"])
             noisy = z["noise"][:n] if "noise" in z.files else np.zeros(n, bool)
             closed = np.r_[False, z["action"][: n - 1, -1] > 0] if "action" in z.files else np.zeros(n, bool)
             for k in (k for k in z.files if k.startswith("imagined/")):  # a cell evaluated twice: the later wins
-                key = (int(seed_dir.name[1:]), f.relative_to(seed_dir).parts[0], f.parent.name, k[9:], f.stem)
+                key = (*_cell_of(f, evaluations), k[9:], f.stem)
                 imagined = z[k][:n].astype(bool)
                 steps[key] = (imagined, noisy[: len(imagined)], closed[: len(imagined)])
     rows = []
@@ -93,14 +101,13 @@ def detection_markdown(det: pd.DataFrame, checkpoint: str) -> list[str]:
     d = det[(det.checkpoint == checkpoint) & (det.seed == POOLED)] if len(det) else det
     if not len(d):
         return []
-    pct = lambda x: "–" if np.isnan(x) else f"{100 * x:.0f}%"  # noqa: E731
-    order = {n: i for i, n in enumerate(TABLE1_NOISES + TABLE2_NOISES + DIAGNOSTIC_NOISES + CONTROL_NOISES)}
+    order = {n: i for i, n in enumerate(NOISE_ORDER)}
     lines = ["| noise | modality | corrupted by it | imagined in the windows | gripper open | gripper closed "
              "| imagined outside them |", "|---|---|---|---|---|---|---|"]
     for r in sorted(d.itertuples(), key=lambda r: (order.get(r.noise, len(order)), r.noise, r.modality)):
         hit = r.modality in NoiseSchedule(r.noise, []).keys
-        lines.append(f"| {r.noise} | {r.modality} | {'yes' if hit else 'no'} | {pct(r.recall)} | {pct(r.recall_open)} "
-                     f"| {pct(r.recall_closed)} | {pct(r.outside)} |")
+        lines.append(f"| {r.noise} | {r.modality} | {'yes' if hit else 'no'} | {_pct(r.recall)} | {_pct(r.recall_open)} "
+                     f"| {_pct(r.recall_closed)} | {_pct(r.outside)} |")
     return lines
 
 
@@ -168,7 +175,6 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
     A claim about a noise is testable where the clean and blind bars hold and that noise hurts."""
     s = success[(success.checkpoint == checkpoint) & (success.seed == seed)].set_index(["variant", "noise"])
     rate = lambda v, n: s.rate.get((v, n), np.nan)  # noqa: E731
-    pct = lambda x: "–" if np.isnan(x) else f"{100 * x:.0f}%"  # noqa: E731
     p = pairs[(pairs.checkpoint == checkpoint) & (pairs.seed == seed)] if len(pairs) else pairs
 
     def above(a: str, noise: str) -> tuple[str, bool, list]:  # a above BC-LSTM under noise, paired
@@ -179,27 +185,27 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
 
     def within(a: str, noise: str) -> tuple[str, bool, list]:  # a under noise within 10 points of clean NOSTRA
         return (f"{LABELS[a]} under {noise} within {WITHIN:.0%} of its clean success "
-                f"({pct(rate(a, noise))} vs {pct(rate('nostra', 'none'))})",
+                f"({_pct(rate(a, noise))} vs {_pct(rate('nostra', 'none'))})",
                 rate("nostra", "none") - rate(a, noise) <= WITHIN, [rate("nostra", "none"), rate(a, noise)])
 
     def hurts(noise: str) -> tuple[str, bool, list]:
-        return (f"{noise} hurts closed-loop BC-NOSTRA by >= {WITHIN:.0%} ({pct(rate('nostra', 'none'))} -> "
-                f"{pct(rate('nostra', noise))})", rate("nostra", "none") - rate("nostra", noise) >= WITHIN,
+        return (f"{noise} hurts closed-loop BC-NOSTRA by >= {WITHIN:.0%} ({_pct(rate('nostra', 'none'))} -> "
+                f"{_pct(rate('nostra', noise))})", rate("nostra", "none") - rate("nostra", noise) >= WITHIN,
                 [rate("nostra", "none"), rate("nostra", noise)])
 
-    base = [(f"closed-loop clean >= {CLEAN_MIN:.0%} (BC-LSTM {pct(rate('lstm', 'none'))}, BC-NOSTRA "
-             f"{pct(rate('nostra', 'none'))})", min(rate("lstm", "none"), rate("nostra", "none")) >= CLEAN_MIN,
+    base = [(f"closed-loop clean >= {CLEAN_MIN:.0%} (BC-LSTM {_pct(rate('lstm', 'none'))}, BC-NOSTRA "
+             f"{_pct(rate('nostra', 'none'))})", min(rate("lstm", "none"), rate("nostra", "none")) >= CLEAN_MIN,
              [rate("lstm", "none"), rate("nostra", "none")]),
-            (f"blind control <= {BLIND_MAX:.0%} (BC-LSTM {pct(rate('lstm', 'blind'))}, MLI "
-             f"{pct(rate('nostra_mli', 'blind'))})", max(rate("lstm", "blind"), rate("nostra_mli", "blind")) <= BLIND_MAX,
+            (f"blind control <= {BLIND_MAX:.0%} (BC-LSTM {_pct(rate('lstm', 'blind'))}, MLI "
+             f"{_pct(rate('nostra_mli', 'blind'))})", max(rate("lstm", "blind"), rate("nostra_mli", "blind")) <= BLIND_MAX,
              [rate("lstm", "blind"), rate("nostra_mli", "blind")])]
     # (noise, its claims): Table 1's unless only Table 2 ran (OBS=rgbd), then Table 2's once any of its cells exist
     ran = set(s.index.get_level_values("noise"))
     claims = []
     if not ran & set(TABLE2_NOISES) or ran & set(TABLE1_NOISES[1:]):
         claims = [("mask", [within("nostra_mli", "mask"), above("nostra_mli", "mask"),
-                            (f"AdaMLI within {WITHIN:.0%} of oracle MLI under mask ({pct(rate('nostra_adamli', 'mask'))} "
-                             f"vs {pct(rate('nostra_mli', 'mask'))})",
+                            (f"AdaMLI within {WITHIN:.0%} of oracle MLI under mask ({_pct(rate('nostra_adamli', 'mask'))} "
+                             f"vs {_pct(rate('nostra_mli', 'mask'))})",
                              abs(rate("nostra_adamli", "mask") - rate("nostra_mli", "mask")) <= WITHIN,
                              [rate("nostra_adamli", "mask"), rate("nostra_mli", "mask")])])]
     if ran & set(TABLE2_NOISES):
@@ -228,7 +234,7 @@ def _cell(r) -> str:
 
 def success_markdown(success: pd.DataFrame, checkpoint: str, seed: str) -> list[str]:
     s = success[(success.checkpoint == checkpoint) & (success.seed == seed)]
-    noises = [n for n in TABLE1_NOISES + TABLE2_NOISES + DIAGNOSTIC_NOISES + CONTROL_NOISES if n in set(s.noise)]
+    noises = [n for n in NOISE_ORDER if n in set(s.noise)]
     lines = ["| Method | " + " | ".join(noises) + " |", "|---" * (len(noises) + 1) + "|"]
     for v in [v for v in ROWS if v in set(s.variant)]:
         r = s[s.variant == v].set_index("noise")
