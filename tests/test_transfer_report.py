@@ -39,8 +39,9 @@ def test_tables_pairs_and_verdicts(tmp_path):
     assert ("finetune-n20", "nostra", "cotrain-target_only", "nostra") not in p.index  # 20 demos: no scratch run
     assert p.loc[("cotrain-all", "nostra", "cotrain-obj_skill", "nostra"), "diff"] == pytest.approx(0.6)  # +all's step
     lines = "\n".join(verdicts(pairs))
-    assert "| BC-NOSTRA fine-tunes above BC-RSSM | finetune-n10 | +80" in lines and lines.count("| shown |") == 3
+    assert "| BC-NOSTRA fine-tunes above BC-RSSM | finetune-n10 | +80" in lines and lines.count("| shown |") == 4
     assert "| BC-NOSTRA fine-tunes above BC-LSTM | finetune-n10 | +5 [+0, +15], p = 1 | not shown (higher, not significant) |" in lines
+    assert "from scratch, as many demos | finetune-n10 | +40 [+20, +60], p = 0.0078 | shown |" in lines
     assert "obj_skill retrieval improves BC-NOSTRA over target only | cotrain-obj_skill | +0 [+0, +0], p = 1 | not shown |" in lines
     assert "| all retrieval improves BC-NOSTRA over obj_skill | cotrain-all | +60 [+40, +80], p = 0.00049 | shown |" in lines
 
