@@ -1,4 +1,4 @@
-# Sourced by scripts/cpu.sh and scripts/cpu_claims.sh: where a CPU-profile study lives, from
+# Sourced by the CPU-profile scripts (cpu.sh, cpu_claims.sh, cpu_transfer.sh, cpu_adamli_sweep.sh): where a study lives, from
 #   OBS=rgb (two cameras + proprioception: Table 1; default) | rgbd (+ agentview depth: Table 2, profile cpu_rgbd)
 #   CAPACITY=configured (default) | matched (BC-LSTM's and BC-RSSM's widths give NOSTRA's parameter count,
 #            nostra.workflows.capacity; NOSTRA, the reference, is the configured run, linked, not retrained)
