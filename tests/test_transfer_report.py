@@ -23,6 +23,7 @@ def _scenario(root):
     _write(root, 0, "cotrain-target_only", "nostra", [True] * 8 + [False] * 12)
     _write(root, 0, "cotrain-obj_skill", "nostra", [True] * 8 + [False] * 12)
     _write(root, 0, "cotrain-all", "nostra", [True] * 20)
+    _write(root, 0, "cotrain-obj_skill", "rssm", [False] * 20, folder="rssm")  # a later evaluation, its own folder
 
 
 def test_tables_pairs_and_verdicts(tmp_path):
@@ -39,11 +40,13 @@ def test_tables_pairs_and_verdicts(tmp_path):
     assert ("finetune-n20", "nostra", "cotrain-target_only", "nostra") not in p.index  # 20 demos: no scratch run
     assert p.loc[("cotrain-all", "nostra", "cotrain-obj_skill", "nostra"), "diff"] == pytest.approx(0.6)  # +all's step
     lines = "\n".join(verdicts(pairs))
-    assert "| BC-NOSTRA fine-tunes above BC-RSSM | finetune-n10 | +80" in lines and lines.count("| shown |") == 4
+    assert "| BC-NOSTRA fine-tunes above BC-RSSM | finetune-n10 | +80" in lines and lines.count("| shown |") == 5
     assert "| BC-NOSTRA fine-tunes above BC-LSTM | finetune-n10 | +5 [+0, +15], p = 1 | not shown (higher, not significant) |" in lines
     assert "from scratch, as many demos | finetune-n10 | +40 [+20, +60], p = 0.0078 | shown |" in lines
     assert "obj_skill retrieval improves BC-NOSTRA over target only | cotrain-obj_skill | +0 [+0, +0], p = 1 | not shown |" in lines
     assert "| all retrieval improves BC-NOSTRA over obj_skill | cotrain-all | +60 [+40, +80], p = 0.00049 | shown |" in lines
+    assert "| BC-NOSTRA co-trains above BC-RSSM | cotrain-obj_skill | +40 [+20, +60], p = 0.0078 | shown |" in lines
+    assert "| BC-NOSTRA co-trains above BC-LSTM | – | – | not measured |" in lines  # no BC-LSTM co-trained
 
     report = write_report(tmp_path, tmp_path / "out", target_demos=10)
     assert "| BC-NOSTRA | 80 [58, 92] | 100 [84, 100] |" in report  # Table 4's row: 10 and 20 demos

@@ -149,6 +149,8 @@ def verdicts(pairs: pd.DataFrame, seed: str = POOLED) -> list[str]:
               ("co-training with all retrieval improves BC-NOSTRA over target only", "Table 5", "nostra", "cotrain-all",
                "cotrain-target_only"),
               ("all retrieval improves BC-NOSTRA over obj_skill", "Table 5", "nostra", "cotrain-all", "cotrain-obj_skill")]
+    claims += [(f"BC-NOSTRA co-trains above {LABELS[b]}", "Table 5", b, f"cotrain-{c}", None)  # the paper's rows
+               for b in ("rssm", "lstm") for c in COTRAIN[1:]]
     lines = ["| Claim (paper) | setting | a - b (points) [95% CI], p | verdict |", "|---|---|---|---|"]
     for text, table, b, a_setting, b_setting in claims:
         rows = p[(p.table == table) & (p.a == "nostra") & (p.b == b)] if len(p) else p
