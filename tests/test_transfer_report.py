@@ -46,7 +46,7 @@ def test_tables_pairs_and_verdicts(tmp_path):
     assert "obj_skill retrieval improves BC-NOSTRA over target only | cotrain-obj_skill | +0 [+0, +0], p = 1 | not shown |" in lines
     assert "| all retrieval improves BC-NOSTRA over obj_skill | cotrain-all | +60 [+40, +80], p = 0.00049 | shown |" in lines
     assert "| BC-NOSTRA co-trains above BC-RSSM | cotrain-obj_skill | +40 [+20, +60], p = 0.0078 | shown |" in lines
-    assert "| BC-NOSTRA co-trains above BC-LSTM | – | – | not measured |" in lines  # no BC-LSTM co-trained
+    assert "| BC-NOSTRA co-trains above BC-LSTM | cotrain-all | – | not measured |" in lines  # no BC-LSTM co-trained
 
     report = write_report(tmp_path, tmp_path / "out", target_demos=10)
     assert "| BC-NOSTRA | 80 [58, 92] | 100 [84, 100] |" in report  # Table 4's row: 10 and 20 demos

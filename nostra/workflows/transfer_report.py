@@ -158,7 +158,7 @@ def verdicts(pairs: pd.DataFrame, seed: str = POOLED) -> list[str]:
             rows = rows[rows.b_setting == (b_setting or rows.a_setting)]
             rows = rows[rows.a_setting == a_setting] if a_setting else rows
         if not len(rows):
-            lines.append(f"| {text} | – | – | not measured |")
+            lines.append(f"| {text} | {a_setting or '–'} | – | not measured |")
         for r in rows.itertuples():
             verdict = ("shown" if r.diff > 0 and r.p < ALPHA else
                        "not shown (higher, not significant)" if r.diff > 0 else "not shown")
