@@ -62,10 +62,8 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("root", type=Path, help="the reports folder (e.g. reports)")
     args = ap.parse_args(argv)
-    text = render(args.root)
-    tmp = args.root / (INDEX + ".tmp")  # written whole, then moved: a failed run leaves the old index
-    tmp.write_text(text)
-    tmp.replace(args.root / INDEX)
+    text = render(args.root)  # every report read before the index is touched: a bad one leaves the old index
+    (args.root / INDEX).write_text(text)
     print(f"wrote {args.root / INDEX}")
 
 
