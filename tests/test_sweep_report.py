@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from nostra.workflows.sweep_report import main, parse, sweep_table
+from nostra.workflows.sweep_report import main, paired_table, parse, sweep_table
 
 
 def _records(root, setting, noise, variant, wins, n=4):
@@ -40,6 +40,21 @@ def test_one_row_per_setting_with_success_kl_and_detection(tmp_path):
     assert "| **0.0001** | **0.1** | 100 [51, 100] | – | 75 [30, 95] | – | 15.0 | 10.0 | 5.0 | 0.80 / 0.60 | 5.0% |" in text
     assert "| 0.01 | 0.1 | 25 [5, 70] | – | 0 [0, 49] | – | 1.5 |" in text
     assert (tmp_path / "out/sweep.png").stat().st_size > 1000
+    assert "| 0.01 | 0.1 | BC-NOSTRA, none: this setting - the paper's | 4 | -75 [" in text
+
+
+def test_paired_rows_compare_each_setting_to_the_papers_on_the_same_episodes(tmp_path):
+    ev = tmp_path / "ev"
+    _records(ev, "b1e-4_g0.1", "mask", "nostra", 1)        # episodes 1000-1003: T F F F
+    _records(ev, "b1e-4_g0.1", "mask", "nostra_mli", 3)    # T T T F
+    _records(ev, "b1e-3_g0.1", "mask", "nostra_mli", 4)    # T T T T
+    pairs = paired_table(ev).set_index("comparison")
+    mli = pairs.loc["BC-NOSTRA + MLI - BC-NOSTRA, mask"]
+    assert (mli.beta, mli.n, mli["diff"], mli.a_only, mli.b_only) == (1e-4, 4, 0.5, 2, 0)
+    vs_paper = pairs.loc["BC-NOSTRA + MLI, mask: this setting - the paper's"]
+    assert (vs_paper.beta, vs_paper["diff"], vs_paper.a_only, vs_paper.b_only) == (1e-3, 0.25, 1, 0)
+    assert vs_paper.p == 1.0  # one discordant episode: McNemar's exact test cannot reject
+    assert len(pairs) == 2  # no AdaMLI cells, and no comparison of the paper's setting with itself
 
 
 def test_bad_setting_folder_and_empty_sweep_say_what_is_expected(tmp_path):

@@ -1,7 +1,8 @@
 """NOSTRA's sensitivity to beta and gamma at a profile (scripts/cpu_sweep.sh): per setting, success
 of 50 clean and 50 masked rollouts (closed loop, + MLI, + AdaMLI, every setting on the same initial
 states), the per-modality KL on the held-out demos and AdaMLI's detection under mask, as one table
-(sweep.md, sweep.csv) and one figure (sweep.png).
+(sweep.md, sweep.csv) and one figure (sweep.png), with paired comparisons (paired.csv): each setting
+against the paper's on the same initial states, and imagination against the closed loop under mask.
 
     python -m nostra.workflows.sweep_report --evaluations data/runs/cpu/evaluate/liftd1-sweep \
         --offline data/runs/cpu/offline/liftd1-sweep --out reports/cpu/liftd1/sweep
@@ -23,6 +24,7 @@ from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
 SETTING = re.compile(r"b(?P<beta>[^_]+)_g(?P<gamma>.+)")
+PAPER = (1e-4, 0.1)  # beta, gamma: conf/model/nostra.yaml's defaults
 CELLS = [("none", "nostra"), ("mask", "nostra"), ("mask", "nostra_mli"), ("mask", "nostra_adamli")]
 
 
@@ -33,20 +35,51 @@ def parse(name: str) -> dict:
     return {"beta": float(m["beta"]), "gamma": float(m["gamma"])}
 
 
-def success(evaluations: Path) -> pd.DataFrame:
-    """Success per (setting, noise, variant) from the episode records under
-    ``evaluations/<setting>/``: k, n, rate and its 95% Wilson interval."""
-    runs: dict[tuple, list[bool]] = {}
-    for f in sorted(evaluations.glob("*/**/records/*/*/*_seed*.npz")):
-        setting = f.relative_to(evaluations).parts[0]
-        with np.load(f) as z:
-            runs.setdefault((setting, f.parent.name, f.stem.rsplit("_seed", 1)[0]), []).append(bool(z["success"]))
+def episodes(evaluations: Path) -> pd.DataFrame:
+    """One row per rollout under ``evaluations/<setting>/``: setting, noise, variant, episode seed, success."""
     rows = []
-    for (setting, noise, variant), ok in runs.items():
-        lo, hi = wilson(sum(ok), len(ok))
-        rows.append({"setting": setting, "noise": noise, "variant": variant, "k": sum(ok), "n": len(ok),
-                     "rate": sum(ok) / len(ok), "ci_low": lo, "ci_high": hi})
-    return pd.DataFrame(rows, columns=["setting", "noise", "variant", "k", "n", "rate", "ci_low", "ci_high"])
+    for f in sorted(evaluations.glob("*/**/records/*/*/*_seed*.npz")):
+        variant, seed = f.stem.rsplit("_seed", 1)
+        with np.load(f) as z:
+            rows.append({"setting": f.relative_to(evaluations).parts[0], "noise": f.parent.name,
+                         "variant": variant, "episode": int(seed), "success": bool(z["success"])})
+    return pd.DataFrame(rows, columns=["setting", "noise", "variant", "episode", "success"])
+
+
+def success(evaluations: Path) -> pd.DataFrame:
+    """Success per (setting, noise, variant): k, n, rate and its 95% Wilson interval."""
+    g = episodes(evaluations).groupby(["setting", "noise", "variant"])["success"]
+    t = g.agg(k="sum", n="count").reset_index()
+    t["rate"] = t.k / t.n
+    t["ci_low"] = [wilson(int(k), int(n))[0] for k, n in zip(t.k, t.n)]
+    t["ci_high"] = [wilson(int(k), int(n))[1] for k, n in zip(t.k, t.n)]
+    return t
+
+
+def paired_table(evaluations: Path, paper: tuple[float, float] = PAPER) -> pd.DataFrame:
+    """The comparisons the sweep is for, paired over the initial states both cells met: each setting's
+    cell against the paper's setting's, and within a setting imagination under mask (MLI and AdaMLI
+    against the closed-loop policy, AdaMLI against MLI)."""
+    from nostra.workflows.claims import paired
+
+    ep = episodes(evaluations)
+    cell = {k: g.set_index("episode")["success"] for k, g in ep.groupby(["setting", "noise", "variant"])}
+    settings = sorted({k[0] for k in cell}, key=lambda n: (parse(n)["gamma"], parse(n)["beta"]))
+    ref = next((s for s in settings if (parse(s)["beta"], parse(s)["gamma"]) == paper), None)
+    rows = []
+
+    def add(setting: str, what: str, a: tuple, b: tuple) -> None:
+        if a in cell and b in cell:
+            rows.append({**parse(setting), "comparison": what, **paired(cell[a], cell[b])})
+
+    for s in settings:
+        if ref is not None and s != ref:
+            for noise, variant in CELLS:
+                add(s, f"{LABELS[variant]}, {noise}: this setting - the paper's", (s, noise, variant),
+                    (ref, noise, variant))
+        for a, b in (("nostra_mli", "nostra"), ("nostra_adamli", "nostra"), ("nostra_adamli", "nostra_mli")):
+            add(s, f"{LABELS[a]} - {LABELS[b]}, mask", (s, "mask", a), (s, "mask", b))
+    return pd.DataFrame(rows)
 
 
 def offline(root: Path) -> pd.DataFrame:
@@ -87,7 +120,22 @@ def _pct(r, col: str) -> str:
     return f"{100 * r[col]:.0f} [{100 * r[col + ' low']:.0f}, {100 * r[col + ' high']:.0f}]"
 
 
-def markdown(table: pd.DataFrame, header: list[str], paper: tuple[float, float] = (1e-4, 0.1)) -> str:
+def paired_markdown(pairs: pd.DataFrame) -> list[str]:
+    if not len(pairs):
+        return []
+    lines = ["## Paired comparisons", "",
+             "Over the initial states both cells met; difference in points [95% bootstrap interval], the episodes "
+             "only one of the two succeeded on, McNemar's exact p (uncorrected for the number of rows).", "",
+             "| beta | gamma | comparison | n | difference [95% CI] | only a / only b | McNemar exact p |",
+             "|---|---|---|---|---|---|---|"]
+    for r in pairs.itertuples():
+        lines.append(f"| {r.beta:g} | {r.gamma:g} | {r.comparison} | {r.n} | {100 * r.diff:+.0f} "
+                     f"[{100 * r.ci_low:+.0f}, {100 * r.ci_high:+.0f}] | {r.a_only} / {r.b_only} | {r.p:.2g} |")
+    return lines + [""]
+
+
+def markdown(table: pd.DataFrame, header: list[str], paper: tuple[float, float] = PAPER,
+             pairs: pd.DataFrame | None = None) -> str:
     kl_cols = [c for c in table.columns if c.startswith("kl ") and c != "kl total"]
     cells = [f"{v} {n}" for n, v in CELLS]
     lines = ["# NOSTRA's sensitivity to beta and gamma", "", *header, "",
@@ -105,11 +153,12 @@ def markdown(table: pd.DataFrame, header: list[str], paper: tuple[float, float] 
             (f"{r.precision:.2f} / {r.recall:.2f}", f"{100 * r.false_imagination:.1f}%")
         lines.append(f"| {mark}{r.beta:g}{mark} | {mark}{r.gamma:g}{mark} | " + " | ".join(_pct(r, c) for c in cells) +
                      " | " + " | ".join(kl) + f" | {det[0]} | {det[1]} |")
-    lines += ["", "![sensitivity to beta and gamma](sweep.png)", ""]
+    lines += ["", *paired_markdown(pairs if pairs is not None else pd.DataFrame()),
+              "![sensitivity to beta and gamma](sweep.png)", ""]
     return "\n".join(lines)
 
 
-def figure(table: pd.DataFrame, path: Path, paper: tuple[float, float] = (1e-4, 0.1)) -> None:
+def figure(table: pd.DataFrame, path: Path, paper: tuple[float, float] = PAPER) -> None:
     """Success (clean and mask cells) and total KL against beta (gamma at the paper's) and against
     gamma (beta at the paper's)."""
     import matplotlib
@@ -149,14 +198,16 @@ def main(argv: list[str] | None = None) -> None:
     from nostra.workflows.cpu_report import machine
 
     table = sweep_table(args.evaluations, args.offline)
+    pairs = paired_table(args.evaluations)
     header = [f"- Command: `{args.command}`" if args.command else f"- Evaluations: `{args.evaluations}`",
               f"- Machine: {machine()}"]
     if args.wall_seconds:
         header.append(f"- Wall time of the command: {args.wall_seconds / 60:.0f} min")
     args.out.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out / "sweep.csv", index=False)
+    pairs.to_csv(args.out / "paired.csv", index=False)
     figure(table, args.out / "sweep.png")
-    (args.out / "sweep.md").write_text(markdown(table, header))
+    (args.out / "sweep.md").write_text(markdown(table, header, pairs=pairs))
     print(args.out / "sweep.md")
 
 
