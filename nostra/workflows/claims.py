@@ -147,6 +147,12 @@ def paired(a: pd.Series, b: pd.Series, seed: int = 0) -> dict:
             "a_only": table[0][1], "b_only": table[1][0], "p": mcnemar(table, exact=True).pvalue}
 
 
+def paired_cells(r) -> str:
+    """A paired row's Markdown cells: difference in points [95% CI] | only a / only b | McNemar p."""
+    return (f"{100 * r.diff:+.0f} [{100 * r.ci_low:+.0f}, {100 * r.ci_high:+.0f}] | {r.a_only} / {r.b_only} | "
+            f"{r.p:.2g}")
+
+
 def paired_table(df: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for (ck, seed), g in _with_pooled(df).groupby(["checkpoint", "seed"]):
@@ -247,9 +253,7 @@ def paired_markdown(pairs: pd.DataFrame, checkpoint: str, seed: str) -> list[str
     lines = ["| Comparison | noise | n | difference (points) [95% CI] | only a / only b | McNemar exact p |",
              "|---|---|---|---|---|---|"]
     for r in p.itertuples():
-        lines.append(f"| {LABELS.get(r.a, r.a)} - {LABELS.get(r.b, r.b)} | {r.noise} | {r.n} | "
-                     f"{100 * r.diff:+.0f} [{100 * r.ci_low:+.0f}, {100 * r.ci_high:+.0f}] | {r.a_only} / {r.b_only} | "
-                     f"{r.p:.2g} |")
+        lines.append(f"| {LABELS.get(r.a, r.a)} - {LABELS.get(r.b, r.b)} | {r.noise} | {r.n} | {paired_cells(r)} |")
     return lines
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from nostra.workflows.claims import paired, paired_cells
 from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
@@ -60,8 +61,6 @@ def paired_table(evaluations: Path, paper: tuple[float, float] = PAPER) -> pd.Da
     """The comparisons the sweep is for, paired over the initial states both cells met: each setting's
     cell against the paper's setting's, and within a setting imagination under mask (MLI and AdaMLI
     against the closed-loop policy, AdaMLI against MLI)."""
-    from nostra.workflows.claims import paired
-
     ep = episodes(evaluations)
     cell = {k: g.set_index("episode")["success"] for k, g in ep.groupby(["setting", "noise", "variant"])}
     settings = sorted({k[0] for k in cell}, key=lambda n: (parse(n)["gamma"], parse(n)["beta"]))
@@ -129,8 +128,7 @@ def paired_markdown(pairs: pd.DataFrame) -> list[str]:
              "| beta | gamma | comparison | n | difference [95% CI] | only a / only b | McNemar exact p |",
              "|---|---|---|---|---|---|---|"]
     for r in pairs.itertuples():
-        lines.append(f"| {r.beta:g} | {r.gamma:g} | {r.comparison} | {r.n} | {100 * r.diff:+.0f} "
-                     f"[{100 * r.ci_low:+.0f}, {100 * r.ci_high:+.0f}] | {r.a_only} / {r.b_only} | {r.p:.2g} |")
+        lines.append(f"| {r.beta:g} | {r.gamma:g} | {r.comparison} | {r.n} | {paired_cells(r)} |")
     return lines + [""]
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nostra.workflows.claims import POOLED, _with_pooled, header_lines, paired
+from nostra.workflows.claims import POOLED, _with_pooled, header_lines, paired, paired_cells
 from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
@@ -130,9 +130,7 @@ def paired_markdown(pairs: pd.DataFrame, seed: str) -> list[str]:
     lines = ["| Table | a | b | n | a - b (points) [95% CI] | only a / only b | McNemar exact p |",
              "|---|---|---|---|---|---|---|"]
     for r in p.itertuples():
-        lines.append(f"| {r.table} | {_side(r.a_setting, r.a)} | {_side(r.b_setting, r.b)} | {r.n} | "
-                     f"{100 * r.diff:+.0f} [{100 * r.ci_low:+.0f}, {100 * r.ci_high:+.0f}] | {r.a_only} / {r.b_only} | "
-                     f"{r.p:.2g} |")
+        lines.append(f"| {r.table} | {_side(r.a_setting, r.a)} | {_side(r.b_setting, r.b)} | {r.n} | {paired_cells(r)} |")
     return lines
 
 
