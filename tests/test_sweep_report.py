@@ -40,6 +40,7 @@ def test_one_row_per_setting_with_success_kl_and_detection(tmp_path):
     assert "| **0.0001** | **0.1** | 100 [51, 100] | – | 75 [30, 95] | – | 15.0 | 10.0 | 5.0 | 0.80 / 0.60 | 5.0% |" in text
     assert "| 0.01 | 0.1 | 25 [5, 70] | – | 0 [0, 49] | – | 1.5 |" in text
     assert (tmp_path / "out/sweep.png").stat().st_size > 1000
+    assert "- Episodes: 4 per cell, initial-state seeds 1000-1003" in text
     assert "| 0.01 | 0.1 | BC-NOSTRA, none: this setting - the paper's | 4 | -75 [" in text
 
 

@@ -199,6 +199,10 @@ def main(argv: list[str] | None = None) -> None:
     pairs = paired_table(args.evaluations)
     header = [f"- Command: `{args.command}`" if args.command else f"- Evaluations: `{args.evaluations}`",
               f"- Machine: {machine()}"]
+    ep = episodes(args.evaluations)
+    if len(ep):
+        per_cell = "/".join(str(n) for n in sorted(ep.groupby(["setting", "noise", "variant"]).size().unique()))
+        header.append(f"- Episodes: {per_cell} per cell, initial-state seeds {ep.episode.min()}-{ep.episode.max()}")
     if args.wall_seconds:
         header.append(f"- Wall time of the command: {args.wall_seconds / 60:.0f} min")
     args.out.mkdir(parents=True, exist_ok=True)
