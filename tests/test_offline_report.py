@@ -2,6 +2,7 @@
 
 import json
 
+import pandas as pd
 import pytest
 
 from nostra.workflows.offline_report import main
@@ -77,3 +78,7 @@ def test_threshold_sweep_adds_closed_loop_success_per_setting(tmp_path):
     assert "| mask | 20 | 0.80 | 0.40 | 2.0% | 75 [30, 95] | 25 [5, 70] |" in text
     csv = (tmp_path / "out/adamli_sweep.csv").read_text().splitlines()[0]
     assert "success_none,success_none_low,success_none_high" in csv
+    # f_o = 5 against the paper's 20 on the same four initial states: one more success clean, none masked
+    assert "| 5 | none | 4 | +25 [+0, +75] | 1 / 0 | 1 |" in text and "| 5 | mask | 4 | +0 [+0, +0] | 0 / 0 | 1 |" in text
+    pairs = pd.read_csv(tmp_path / "out/adamli_paired.csv")
+    assert list(pairs.f_o) == [5, 5] and set(pairs.noise) == {"none", "mask"}

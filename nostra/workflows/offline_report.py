@@ -94,6 +94,33 @@ def with_success(sweep: pd.DataFrame, rollouts: pd.DataFrame) -> pd.DataFrame:
     return out.drop(columns="setting")
 
 
+def paired_thresholds(sweep: pd.DataFrame, root: Path) -> pd.DataFrame:
+    """Each threshold setting's closed-loop success against the paper's setting (AdaMLIConfig's
+    defaults), per rollout noise, paired over the initial states both met: difference, 95% CI,
+    McNemar exact p (claims.paired)."""
+    from nostra.policies.imagination import AdaMLIConfig
+    from nostra.workflows.claims import paired
+    from nostra.workflows.sweep_report import episodes
+
+    ep = episodes(root)
+    ep = ep[ep.variant == "nostra_adamli"]
+    if not len(sweep) or not len(ep):
+        return pd.DataFrame()
+    varied = _varied(sweep)
+    params = sweep.assign(setting=sweep.analysis.str.split("/").str[0]).drop_duplicates("setting").set_index("setting")
+    paper = {k: getattr(AdaMLIConfig(), k) for k in varied}
+    ref = next((s for s, r in params.iterrows() if all(r[k] == v for k, v in paper.items())), None)
+    cell = {k: g.set_index("episode")["success"] for k, g in ep.groupby(["setting", "noise"])}
+    rows = [{**{k: params.loc[s, k] for k in varied}, "noise": noise, **paired(c, cell[ref, noise])}
+            for (s, noise), c in cell.items() if ref is not None and s != ref and s in params.index and (ref, noise) in cell]
+    return pd.DataFrame(rows)
+
+
+def _varied(sweep: pd.DataFrame) -> list[str]:
+    return [c for c in sweep.columns if c not in ("analysis", "noise", "precision", "recall", "false_imagination")
+            and not c.startswith("success_")]
+
+
 def sweep_table(analyses: list[dict]) -> pd.DataFrame:
     """One row per analysis with AdaMLI's thresholds and its detection over every modality: the
     threshold sensitivity when the analyses differ in their thresholds (empty otherwise)."""
@@ -140,7 +167,7 @@ def _score(x) -> str:
 
 
 def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict[str, str] | None = None,
-             sweep: pd.DataFrame | None = None) -> str:
+             sweep: pd.DataFrame | None = None, pairs: pd.DataFrame | None = None) -> str:
     lines = ["# Where the nats go, and what AdaMLI detects (offline, held-out demos)", "", f"`{command}`", "",
              "## Per-modality KL on the clean held-out demos (Table 3)", "",
              "Mean KL per step in nats, 95% t-interval over the held-out episodes, share of the total.", ""]
@@ -168,9 +195,7 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
                   for r in g.itertuples()]
         lines.append("")
     if sweep is not None and len(sweep):
-        success = _success_columns(sweep)
-        varied = [c for c in sweep.columns if c not in ("analysis", "noise", "precision", "recall", "false_imagination")
-                  and not c.startswith("success_")]
+        success, varied = _success_columns(sweep), _varied(sweep)
         lines += ["## AdaMLI's thresholds (sensitivity)", "",
                   "Detection over every modality per threshold setting (the others at the paper's values); "
                   "false imagination on the clean demos"
@@ -185,6 +210,17 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
                   f" | {r.precision:.2f} | {r.recall:.2f} | {100 * r.false_imagination:.1f}% |" +
                   "".join(f" {cell(r, c)} |" for c in success) for _, r in sweep.iterrows()]
         lines += ["", "![AdaMLI threshold sensitivity](adamli_sweep.png)", ""]
+    if pairs is not None and len(pairs):
+        from nostra.workflows.claims import paired_cells
+
+        varied = [c for c in pairs.columns if c in ("f_o", "k_o", "f_c", "k_c")]
+        lines += ["Closed-loop success of each setting minus the paper's, paired over the initial states both met "
+                  "(`adamli_paired.csv`):", "",
+                  "| " + " | ".join(varied) + " | rollout noise | n | difference (points) [95% CI] | only this / only "
+                  "the paper's | McNemar exact p |", "|---" * (len(varied) + 5) + "|"]
+        lines += ["| " + " | ".join(f"{getattr(r, k):g}" for k in varied) + f" | {r.noise} | {r.n} | {paired_cells(r)} |"
+                  for r in pairs.itertuples()]
+        lines.append("")
     if figures:
         lines += ["## Per-modality KL over one held-out episode (Figure 5)", "",
                   "Noise windows shaded, the steps AdaMLI imagines marked above the curves.", ""]
@@ -208,12 +244,16 @@ def main(argv: list[str] | None = None) -> None:
     detect.to_csv(args.out / "detection.csv", index=False)
     command = args.command or f"python -m nostra.workflows.offline_report --analyses {args.analyses} --out {args.out}"
     figures, sweep = ({} if args.no_figures else copy_figures(analyses, args.out)), sweep_table(analyses)
+    pairs = pd.DataFrame()
     if args.rollouts is not None:
+        pairs = paired_thresholds(sweep, args.rollouts)
         sweep = with_success(sweep, closed_loop(args.rollouts))
     if len(sweep):
         sweep.to_csv(args.out / "adamli_sweep.csv", index=False)
         sweep_figure(sweep, args.out / "adamli_sweep.png")
-    (args.out / "offline.md").write_text(markdown(kl, detect, command, figures, sweep))
+    if len(pairs):
+        pairs.to_csv(args.out / "adamli_paired.csv", index=False)
+    (args.out / "offline.md").write_text(markdown(kl, detect, command, figures, sweep, pairs))
     print(args.out / "offline.md")
 
 
