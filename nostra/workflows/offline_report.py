@@ -113,7 +113,7 @@ def paired_thresholds(sweep: pd.DataFrame, root: Path) -> pd.DataFrame:
     cell = {k: g.set_index("episode")["success"] for k, g in ep.groupby(["setting", "noise"])}
     rows = [{**{k: params.loc[s, k] for k in varied}, "noise": noise, **paired(c, cell[ref, noise])}
             for (s, noise), c in cell.items() if ref is not None and s != ref and s in params.index and (ref, noise) in cell]
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows).sort_values([*varied, "noise"]).reset_index(drop=True) if rows else pd.DataFrame()
 
 
 def _varied(sweep: pd.DataFrame) -> list[str]:
