@@ -110,9 +110,11 @@ def paired_thresholds(sweep: pd.DataFrame, root: Path) -> pd.DataFrame:
     params = sweep.assign(setting=sweep.analysis.str.split("/").str[0]).drop_duplicates("setting").set_index("setting")
     paper = {k: getattr(AdaMLIConfig(), k) for k in varied}
     ref = next((s for s, r in params.iterrows() if all(r[k] == v for k, v in paper.items())), None)
+    if ref is None:
+        return pd.DataFrame()
     cell = {k: g.set_index("episode")["success"] for k, g in ep.groupby(["setting", "noise"])}
     rows = [{**{k: params.loc[s, k] for k in varied}, "noise": noise, **paired(c, cell[ref, noise])}
-            for (s, noise), c in cell.items() if ref is not None and s != ref and s in params.index and (ref, noise) in cell]
+            for (s, noise), c in cell.items() if s != ref and s in params.index and (ref, noise) in cell]
     return pd.DataFrame(rows).sort_values([*varied, "noise"]).reset_index(drop=True) if rows else pd.DataFrame()
 
 
@@ -213,7 +215,7 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
     if pairs is not None and len(pairs):
         from nostra.workflows.claims import paired_cells
 
-        varied = [c for c in pairs.columns if c in ("f_o", "k_o", "f_c", "k_c")]
+        varied = list(pairs.columns[:pairs.columns.get_loc("noise")])  # the thresholds paired_thresholds put first
         lines += ["Closed-loop success of each setting minus the paper's, paired over the initial states both met "
                   "(`adamli_paired.csv`):", "",
                   "| " + " | ".join(varied) + " | rollout noise | n | difference (points) [95% CI] | only this / only "
