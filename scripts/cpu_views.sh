@@ -7,43 +7,75 @@
 # with no in-training rollouts (the KL is the measure, not success), so the two differ only in the view.
 # Needs scripts/cpu_offline.sh's good-view analyses for the comparison; every step is resumable.
 #   TASK=liftd1 SEED=0 bash scripts/cpu_views.sh
+#
+# BETA=<KL weight> trains both arms here instead, at that beta, STEPS steps each (default 2000), with
+# the same schedule and no in-training rollouts, and pairs them over the held-out demos (same seeds):
+# reports/cpu/<task>/views/ (offline.md, views.csv). BETAS="1e-2 1e-4" runs one pair per beta.
+#   TASK=liftd1 SEED=0 BETAS="1e-2 1e-4" bash scripts/cpu_views.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
 TASK=${TASK:-liftd1}
 SEED=${SEED:-0}
 NOISES=${NOISES:-mask}
+BETAS=${BETAS:-${BETA:-}}
+STEPS=${STEPS:-2000}
 OBS=rgb CAPACITY=configured source scripts/cpu_setup.sh   # PROFILE=cpu, RUNS=data/runs/cpu, collection
-ROOT=$RUNS/offline/$TASK
 COLL=${TASK}_occluded_cpu
 COMMON="profile=cpu task=$TASK paths.runs=$RUNS"
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
-RUN=pretrain-nostra-${NAME}-occluded-s$SEED
+WINDOWS=$(python -c "import yaml; print(yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows'])" | tr -d ' ')
+start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
-# the step of the good-view checkpoint that the offline analysis reads (best.ckpt)
-STEPS=$(python - "$RUNS/train/pretrain-nostra-$NAME-s$SEED/run.json" <<'PY'
+train() {  # $1 = run, $2 = collection, $3 = steps, $4... = overrides
+  local run=$1 coll=$2 steps=$3; shift 3
+  if [ -f "$RUNS/train/$run/run.json" ]; then log "train $run: finished before, kept"; return; fi
+  log "train $run: $steps steps on $coll $*"
+  nostra train $COMMON model=nostra seed=$SEED "data.collections=[$coll]" train.run_name=$run \
+    train.max_steps=$steps train.max_minutes=null train.rollout.every=0 "$@"
+}
+
+analyse() {  # $1 = checkpoint, $2 = collection, $3 = setting, $4 = output folder (one per noise below it)
+  for noise in $NOISES; do
+    local out=$4/$noise
+    [ -f "$out/offline/offline.json" ] && { log "offline $4 $noise: done before, kept"; continue; }
+    log "offline $4 $noise"
+    nostra evaluate $COMMON seed=$SEED evaluate.rollouts=false evaluate.offline.checkpoint=$1 \
+      "evaluate.offline.collections=[$2]" evaluate.offline.noise=$noise evaluate.offline.episodes=20 \
+      "evaluate.offline.windows=$WINDOWS" evaluate.offline.setting=$3 evaluate.out_dir=$out
+  done
+}
+
+collection ${TASK}_cpu $TASK
+collection $COLL $TASK generate.variation.occluded=1.0   # the good view's seeds: the same initial states
+if [ -z "$BETAS" ]; then   # the occluded arm against make cpu's good-view run (scripts/cpu_offline.sh)
+  ROOT=$RUNS/offline/$TASK
+  RUN=pretrain-nostra-${NAME}-occluded-s$SEED
+  # the step of the good-view checkpoint that the offline analysis reads (best.ckpt)
+  GOOD_STEPS=$(python - "$RUNS/train/pretrain-nostra-$NAME-s$SEED/run.json" <<'PY'
 import json, sys
 run = json.load(open(sys.argv[1]))
 print(((run.get("rollouts") or {}).get("best") or {}).get("step") or run["steps"])
 PY
 )
-collection $COLL $TASK generate.variation.occluded=1.0   # the good view's seeds: the same initial states
-if [ -f "$RUNS/train/$RUN/run.json" ]; then log "train $RUN: finished before, kept"; else
-  log "train $RUN: $STEPS steps (the good-view checkpoint's)"
-  nostra train $COMMON model=nostra seed=$SEED "data.collections=[$COLL]" train.run_name=$RUN \
-    train.max_steps=$STEPS train.max_minutes=null train.rollout.every=0
+  train $RUN $COLL $GOOD_STEPS
+  analyse $RUNS/train/$RUN/policy.ckpt $COLL occluded_view $ROOT/s$SEED-occluded
+  python -m nostra.workflows.offline_report --analyses "$ROOT" --out "reports/cpu/$TASK/offline" \
+    --command "TASK=$TASK SEEDS=\"0\" bash scripts/cpu_offline.sh; TASK=$TASK SEED=$SEED bash scripts/cpu_views.sh"
+  log "done: reports/cpu/$TASK/offline/offline.md"
+  exit 0
 fi
-WINDOWS=$(python -c "import yaml; print(yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows'])" | tr -d ' ')
-for noise in $NOISES; do
-  out=$ROOT/s$SEED-occluded/$noise
-  [ -f "$out/offline/offline.json" ] && { log "offline occluded seed $SEED $noise: done before, kept"; continue; }
-  log "offline occluded seed $SEED $noise"
-  nostra evaluate $COMMON seed=$SEED evaluate.rollouts=false \
-    evaluate.offline.checkpoint=$RUNS/train/$RUN/policy.ckpt "evaluate.offline.collections=[$COLL]" \
-    evaluate.offline.noise=$noise evaluate.offline.episodes=20 "evaluate.offline.windows=$WINDOWS" \
-    evaluate.offline.setting=occluded_view evaluate.out_dir=$out
+ROOT=$RUNS/offline/$TASK-views
+for beta in $BETAS; do
+  for view in good occluded; do
+    tag=b$beta-s$SEED; coll=${TASK}_cpu; setting=good_view
+    [ $view = occluded ] && { tag=$tag-occluded; coll=$COLL; setting=occluded_view; }
+    run=views-nostra-$NAME-$tag
+    train $run $coll $STEPS model.loss.beta=$beta
+    analyse $RUNS/train/$run/policy.ckpt $coll $setting $ROOT/$tag
+  done
 done
-python -m nostra.workflows.offline_report --analyses "$ROOT" --out "reports/cpu/$TASK/offline" \
-  --command "TASK=$TASK SEEDS=\"0\" bash scripts/cpu_offline.sh; TASK=$TASK SEED=$SEED bash scripts/cpu_views.sh"
-log "done: reports/cpu/$TASK/offline/offline.md"
+python -m nostra.workflows.offline_report --analyses "$ROOT" --out "reports/cpu/$TASK/views" \
+  --command "TASK=$TASK SEED=$SEED BETAS=\"$BETAS\" STEPS=$STEPS bash scripts/cpu_views.sh ($(( ($(date +%s) - start) / 60 )) min in this call)"
+log "done: reports/cpu/$TASK/views/offline.md"

@@ -135,6 +135,9 @@ def test_offline_analysis(tmp_path, ckpts):
         assert lo <= hi and (lo <= result["kl_nats"][m] <= hi or np.isclose(lo, hi))
     saved = json.loads((tmp_path / "off/offline.json").read_text())
     assert saved["noise"] == "rgb" and saved["episodes"] == [["t", 0], ["t", 1]] and saved["kl_nats"] == result["kl_nats"]
+    for m in KEYS:  # per episode too (views.py pairs two runs on them): their step-weighted mean is the pooled KL
+        per_ep, steps = np.array(saved["kl_nats_episodes"][m]), np.array(saved["episode_steps"])
+        assert len(per_ep) == 2 and np.isclose((per_ep * steps).sum() / steps.sum(), result["kl_nats"][m])
     assert (tmp_path / "off/kl_episode.png").is_file() and "AdaMLI precision" in (tmp_path / "off/offline.md").read_text()
     assert saved["adamli"]["f_o"] == 20.0 and saved["adamli"]["k_o"] == 10  # the paper's thresholds by default
     # thresholds reach AdaMLI: a warm-up longer than the episodes leaves it nothing to imagine

@@ -84,6 +84,7 @@ def analyse(spec: OfflineSpec) -> dict:
     kl_clean = {m: [] for m in closed.net.groups} if closed.can_imagine else {}
     kl_episodes = {m: [] for m in kl_clean}           # each held-out episode's mean: the intervals' samples
     clean_flags = {m: [] for m in names}              # AdaMLI on the clean episodes: false imagination
+    steps = []                                        # each held-out episode's step count (KL-weighted shares)
     flags, truth = {m: [] for m in names}, {m: [] for m in names}
     figure_done = False
     for ep_i, (coll, ep) in enumerate(tqdm(spec.episodes, desc="offline", disable=not spec.progress)):
@@ -95,6 +96,7 @@ def analyse(spec: OfflineSpec) -> dict:
         seed = spec.seed + ep_i
         run = _replay(closed, obs, length, NoiseSchedule("none", []), "closed", image_size, seed)
         errors["clean"].append(_err(np.asarray(run.action), target, inside))
+        steps.append(len(run.kl))
         for g in kl_clean:
             kl_clean[g] += [i[g] for i in run.kl]
             kl_episodes[g].append(float(np.mean([i[g] for i in run.kl])))
@@ -117,7 +119,9 @@ def analyse(spec: OfflineSpec) -> dict:
                     figure_done = True
     result = {"action_mse": {v: float(np.nanmean(e)) for v, e in errors.items()},
               "kl_nats": {g: float(np.mean(v)) for g, v in kl_clean.items()},
-              "kl_nats_ci": {g: mean_interval(v) for g, v in kl_episodes.items()}}
+              "kl_nats_ci": {g: mean_interval(v) for g, v in kl_episodes.items()},
+              # per held-out episode, so two runs on the same initial states can be compared paired
+              "kl_nats_episodes": kl_episodes, "episode_steps": steps}
     if clean_flags[names[0]]:
         result["false_imagination"] = {m: float(np.mean(f)) for m, f in clean_flags.items()}
         result["false_imagination"]["all"] = float(np.mean(np.concatenate([clean_flags[m] for m in names])))

@@ -6,7 +6,9 @@ per noise, and its false imagination on the clean demos; each analysis's one-epi
 
     python -m nostra.workflows.offline_report --analyses data/runs/cpu/offline/liftd1 --out reports/cpu/liftd1/offline
 
-Each analysis folder's name below --analyses says what it is (e.g. s0/mask); the report lists them."""
+Each analysis folder's name below --analyses says what it is (e.g. s0/mask); the report lists them.
+A run's folder named `<run>-occluded` is compared with `<run>`, paired over the held-out demos
+(nostra.workflows.views: Table 3)."""
 
 from __future__ import annotations
 
@@ -16,6 +18,9 @@ import shutil
 from pathlib import Path
 
 import pandas as pd
+
+from nostra.workflows.views import markdown as views_markdown
+from nostra.workflows.views import view_changes
 
 
 def load(root: Path) -> list[dict]:
@@ -169,7 +174,8 @@ def _score(x) -> str:
 
 
 def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict[str, str] | None = None,
-             sweep: pd.DataFrame | None = None, pairs: pd.DataFrame | None = None) -> str:
+             sweep: pd.DataFrame | None = None, pairs: pd.DataFrame | None = None,
+             changes: pd.DataFrame | None = None) -> str:
     lines = ["# Where the nats go, and what AdaMLI detects (offline, held-out demos)", "", f"`{command}`", "",
              "## Per-modality KL on the clean held-out demos (Table 3)", "",
              "Mean KL per step in nats, 95% t-interval over the held-out episodes, share of the total.", ""]
@@ -186,10 +192,12 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
                   "| modality | " + " | ".join(runs) + " |", "|---" * (len(runs) + 1) + "|"]
         lines += [f"| {m} | " + " | ".join(f"{100 * v:.0f}%" for v in row) + " |" for m, row in shares.iterrows()]
         lines.append("")
+    if changes is not None:
+        lines += views_markdown(changes)
     lines += ["## AdaMLI detection per noise", "",
               "Per-step precision and recall of AdaMLI's imagination flags against the injected windows; false "
               "imagination: share of the clean demos' steps on which AdaMLI imagines the modality.", ""]
-    for (name, noise), g in detect.groupby(["analysis", "noise"], sort=False):
+    for (name, noise), g in (detect.groupby(["analysis", "noise"], sort=False) if len(detect) else []):
         lines += [f"`{name}`: noise `{noise}`", "", "| modality | precision | recall | false imagination (clean) |",
                   "|---|---|---|---|"]
         lines += [f"| {r.modality} | {_score(r.precision)} | {_score(r.recall)} | "
@@ -246,6 +254,9 @@ def main(argv: list[str] | None = None) -> None:
     detect.to_csv(args.out / "detection.csv", index=False)
     command = args.command or f"python -m nostra.workflows.offline_report --analyses {args.analyses} --out {args.out}"
     figures, sweep = ({} if args.no_figures else copy_figures(analyses, args.out)), sweep_table(analyses)
+    changes = view_changes(analyses)
+    if len(changes):
+        changes.to_csv(args.out / "views.csv", index=False)
     pairs = pd.DataFrame()
     if args.rollouts is not None:
         pairs = paired_thresholds(sweep, args.rollouts)
@@ -255,7 +266,7 @@ def main(argv: list[str] | None = None) -> None:
         sweep_figure(sweep, args.out / "adamli_sweep.png")
     if len(pairs):
         pairs.to_csv(args.out / "adamli_paired.csv", index=False)
-    (args.out / "offline.md").write_text(markdown(kl, detect, command, figures, sweep, pairs))
+    (args.out / "offline.md").write_text(markdown(kl, detect, command, figures, sweep, pairs, changes))
     print(args.out / "offline.md")
 
 

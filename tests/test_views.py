@@ -1,0 +1,51 @@
+"""Table 3's paired comparison: the occluded arm against the good arm over the episodes both analysed."""
+
+import json
+
+import pytest
+
+from nostra.workflows.offline_report import main
+from nostra.workflows.views import view_changes
+
+
+def _arm(episodes, agent, pos, steps):
+    return {"episodes": [["c", e] for e in episodes], "episode_steps": steps,
+            "kl_nats_episodes": {"agentview_image": agent, "pos": pos}}
+
+
+GOOD = _arm([0, 1, 2, 3], [4.0, 5.0, 3.0, 4.0], [1.0] * 4, [10, 10, 20, 10])
+# listed in another order, with an episode the good arm never analysed (left out of the pairing)
+OCCLUDED = _arm([3, 7, 2, 1, 0], [2.0, 99.0, 1.0, 3.0, 2.0], [2.0, 99.0, 2.0, 2.0, 2.0], [10, 10, 20, 10, 10])
+
+
+def test_occluded_arm_is_compared_on_the_common_episodes_step_weighted():
+    changes = view_changes([{"name": "b1e-2-s0/mask", **GOOD}, {"name": "b1e-2-s0-occluded/mask", **OCCLUDED}])
+    agent = changes.set_index("modality").loc["agentview_image"]
+    assert agent.episodes == 4
+    assert agent.kl_good == pytest.approx(190 / 50) and agent.kl_occluded == pytest.approx(90 / 50)
+    assert agent.kl_change_pct == pytest.approx(100 * (90 / 190 - 1))
+    assert agent.share_change_pts == pytest.approx(100 * (90 / 190 - 190 / 240))
+    assert agent.kl_change_pct_low <= agent.kl_change_pct <= agent.kl_change_pct_high < 0
+    pos = changes.set_index("modality").loc["pos"]
+    assert pos.kl_change_pct == pytest.approx(100) and pos.share_change_pts > 0
+
+
+def test_a_run_without_its_other_arm_or_per_episode_kl_is_not_compared():
+    assert not len(view_changes([{"name": "s0-occluded/mask", **OCCLUDED}]))
+    old = {k: v for k, v in GOOD.items() if k != "kl_nats_episodes"}  # an analysis from before it was stored
+    assert not len(view_changes([{"name": "s0/mask", **old}, {"name": "s0-occluded/mask", **OCCLUDED}]))
+
+
+def test_report_shows_the_paired_table_and_writes_views_csv(tmp_path):
+    for name, arm in (("b1e-2-s0", GOOD), ("b1e-2-s0-occluded", OCCLUDED)):
+        d = tmp_path / "runs" / name / "mask" / "offline"
+        d.mkdir(parents=True)
+        kl = {m: sum(v) / len(v) for m, v in arm["kl_nats_episodes"].items()}
+        d.joinpath("offline.json").write_text(json.dumps({
+            **arm, "noise": "mask", "checkpoint": f"{name}.ckpt", "kl_nats": kl,
+            "kl_nats_ci": {m: [v - 1, v + 1] for m, v in kl.items()}, "action_mse": {}}))
+    main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--no-figures"])
+    text = (tmp_path / "out/offline.md").read_text()
+    assert "`b1e-2-s0` vs `b1e-2-s0-occluded` (4 episodes)" in text
+    assert "| agentview_image | 3.80 | 1.80 | -53% [" in text and "| 79.2% | 47.4% | -31.8 [" in text
+    assert (tmp_path / "out/views.csv").read_text().startswith("run,episodes,modality,")
