@@ -193,6 +193,7 @@ class TrainConfig:
     manifest: str | None = None      # cotrain: retrieval manifest JSON (nostra retrieve)
     cotrain_ratio: float = 0.5       # cotrain: share of each batch drawn from the target demos
     resume: bool = True              # continue from out_dir/checkpoints/last.ckpt when it exists
+    skip_finished: bool = False      # out_dir/run.json exists (the run ended): keep it, train nothing (`nostra sweep`)
     experiment: str = "nostra"       # MLflow experiment
     run_name: str | None = None
     parent_run_id: str | None = None   # MLflow parent run (set by `nostra sweep`)

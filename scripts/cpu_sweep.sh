@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # NOSTRA's sensitivity to its KL weight beta and KL balance gamma at the CPU profile (issue 11, what
 # the paper's reviewers asked): one setting varied at a time around the paper's (beta 1e-4, gamma
-# 0.1, which is make cpu's BC-NOSTRA run of that seed, reused). Each new setting trains BC-NOSTRA
-# for MINUTES (make cpu's budget), then its best checkpoint runs 50 clean episodes (closed loop) and
+# 0.1, which is make cpu's BC-NOSTRA run of that seed, reused). The new settings train BC-NOSTRA
+# for MINUTES each (make cpu's budget) as one `nostra sweep`, then each best checkpoint runs 50 clean episodes (closed loop) and
 # 50 under mask (closed loop, + MLI, + AdaMLI) on the evaluation seeds, and an offline analysis of
 # its held-out demos under mask (per-modality KL, AdaMLI's detection). Report:
 # reports/cpu/<task>/sweep/ (sweep.md, sweep.csv, sweep.png). ~40 min a setting here.
@@ -31,19 +31,27 @@ settings="b${BETA0}_g${GAMMA0}"
 for b in $BETAS; do settings="$settings b${b}_g${GAMMA0}"; done
 for g in $GAMMAS; do settings="$settings b${BETA0}_g${g}"; done
 
+# the paper's setting is make cpu's run; the others train as one `nostra sweep`, each setting merged into
+# model.loss, one job after the other (LAUNCHER=serial: a time budget must not share the cores; slurm:
+# a job array). The same folder again keeps the finished jobs and resumes the others.
+[ -f "$RUNS/train/pretrain-nostra-$NAME-s$SEED/run.json" ] || \
+  TASK=$TASK SEEDS=$SEED MODELS=nostra MINUTES=$MINUTES bash scripts/cpu.sh
+values=""
+for b in $BETAS; do values="$values{beta:$b},"; done
+for g in $GAMMAS; do values="$values{gamma:$g},"; done
+if [ -n "$values" ]; then
+  log "nostra sweep: model.loss=${values%,} ($MINUTES min budget each)"
+  nostra sweep launcher=${LAUNCHER:-serial} hydra.sweep.dir=$RUNS/sweeps/$TASK-sensitivity-s$SEED $COMMON \
+    model=nostra seed=$SEED "data.collections=[${TASK}_cpu]" train.max_minutes=$MINUTES "train.rollout.modes=[closed]" \
+    "model.loss=${values%,}" 'train.run_name=sweep-nostra-${task.name}-b${model.loss.beta}_g${model.loss.gamma}-s${seed}' \
+    'train.out_dir=${paths.runs}/train/${train.run_name}'
+fi
+
 for s in $settings; do
   beta=${s%_g*}; beta=${beta#b}; gamma=${s#*_g}
-  if [ "$s" = "b${BETA0}_g${GAMMA0}" ]; then
-    run=pretrain-nostra-$NAME-s$SEED   # the paper's setting: make cpu's run
-    [ -f "$RUNS/train/$run/run.json" ] || TASK=$TASK SEEDS=$SEED MODELS=nostra MINUTES=$MINUTES bash scripts/cpu.sh
-  else
-    run=sweep-nostra-$NAME-$s-s$SEED
-    if [ -f "$RUNS/train/$run/run.json" ]; then log "train $run: finished before, kept"; else
-      log "train $run (beta $beta, gamma $gamma; $MINUTES min budget)"
-      nostra train $COMMON model=nostra seed=$SEED "data.collections=[${TASK}_cpu]" train.max_minutes=$MINUTES \
-        model.loss.beta=$beta model.loss.gamma=$gamma train.run_name=$run "train.rollout.modes=[closed]"
-    fi
-  fi
+  run=pretrain-nostra-$NAME-s$SEED   # the paper's setting: make cpu's run
+  # the sweep's run name: the job's config renders the floats as Python does (1e-5 -> 1e-05)
+  [ "$s" = "b${BETA0}_g${GAMMA0}" ] || run=sweep-nostra-$NAME-$(python -c "print(f'b{float(\"$beta\")}_g{float(\"$gamma\")}')")-s$SEED
   ckpt=$RUNS/train/$run/policy.ckpt   # evaluate.checkpoint=best: its checkpoints/best.ckpt
   for noise in none mask; do
     out=$EVAL/$s/$noise

@@ -48,6 +48,37 @@ def test_local_sweep_groups_runs_under_a_parent(tmp_path):
     assert len(parent) == 1 and sorted(children["params.model"]) == ["lstm", "nostra"]
 
 
+def test_serial_sweep_of_merged_settings_resumes_in_its_folder(tmp_path):
+    """One setting varied at a time (dicts merged into model.loss), run names from each job's config,
+    one job after the other; the same command again keeps what finished and trains nothing."""
+    Store(tmp_path / "store.zarr").ingest(write_robomimic(tmp_path / "t.hdf5", n=4, lengths=[10] * 4, image_size=40),
+                                           name="t", progress=False)
+    env = {**os.environ, "MLFLOW_TRACKING_URI": ""}
+    cmd = [NOSTRA, "sweep", "launcher=serial", "hydra.sweep.dir=sens", "data.store=store.zarr", "data.collections=[t]",
+           "train.max_steps=2", "data.batch_size=2", "data.seq_len=4", "data.workers=0", "model=nostra",
+           "data.obs_keys=[agentview_image,robot0_eef_pos]", "model.loss={beta:1e-3},{gamma:0.5}",
+           "train.run_name=b${model.loss.beta}_g${model.loss.gamma}", "train.out_dir=runs/${train.run_name}"]
+    first = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    runs = {p.parent.name: p for p in (tmp_path / "runs").glob("*/run.json")}
+    assert sorted(runs) == ["b0.0001_g0.5", "b0.001_g0.1"]  # the other key keeps the config's value
+    import torch
+
+    for name, loss in (("b0.001_g0.1", {"beta": 1e-3, "gamma": 0.1}), ("b0.0001_g0.5", {"beta": 1e-4, "gamma": 0.5})):
+        hp = torch.load(tmp_path / "runs" / name / "policy.ckpt", map_location="cpu", weights_only=False)
+        assert {k: hp["hyper_parameters"]["loss"][k] for k in loss} == loss
+    stamps = {k: p.stat().st_mtime_ns for k, p in runs.items()}
+    again = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
+    assert again.returncode == 0 and again.stdout.count("finished before (run.json), kept") == 2, again.stdout[-3000:]
+    assert {k: p.stat().st_mtime_ns for k, p in runs.items()} == stamps
+    mlflow.set_tracking_uri(f"sqlite:///{tmp_path / 'mlflow.db'}")
+    found = mlflow.search_runs(search_all_experiments=True)
+    parents = found[found["tags.sweep"] == "true"]
+    assert set(parents["tags.mlflow.runName"]) == {"sweep-sens"}
+    assert sorted(found[found["tags.mlflow.parentRunId"] == parents["run_id"].iloc[-1]]["tags.mlflow.runName"]) == \
+        ["b0.0001_g0.5", "b0.001_g0.1"]
+
+
 def _diagnose(root, out: str) -> str:
     """What the sweep and its submitit jobs left behind (for the order-dependent failure)."""
     lines = [out[-4000:]]
