@@ -27,7 +27,7 @@ def view_pairs(analyses: list[dict]) -> list[tuple[str, dict, dict]]:
 def _nats(a: dict, modalities: list[str], episodes: list[int]) -> np.ndarray:
     """(modalities + 1, episodes): each episode's total KL per modality in nats, then its step count."""
     index = {int(e[1]): i for i, e in enumerate(a["episodes"])}
-    rows = [i for i in (index[e] for e in episodes)]
+    rows = [index[e] for e in episodes]
     steps = np.asarray(a["episode_steps"], float)[rows]
     kl = np.asarray([np.asarray(a["kl_nats_episodes"][m], float)[rows] for m in modalities])
     return np.vstack([kl * steps, steps])
