@@ -120,6 +120,7 @@ def test_header_states_the_command_and_notes(tmp_path, capsys):
           "--note", "Capacity-matched: model.net.rnn_hidden=457"])
     text = (tmp_path / "out/claims.md").read_text()
     assert "- Command: `CAPACITY=matched make cpu-claims`" in text and "- Capacity-matched: model.net.rnn_hidden=457" in text
+    assert "- Initial states: environment seeds 1000-1009 (10 distinct:" in text  # from the records' names
 
 
 def test_adamli_detection_per_modality_and_gripper_phase(tmp_path):

@@ -274,7 +274,9 @@ def write_report(evaluations: Path, out: Path, header: list[str] = ()) -> str:
     ran = set(success.noise)
     tables = " and ".join(t for t, noises in (("Table 1", TABLE1_NOISES[1:]), ("Table 2", TABLE2_NOISES))
                           if ran & set(noises)) or "Clean and controls"
-    text = ["# The paper's claims at CPU scale", "", *header,
+    states = (f"- Initial states: environment seeds {df.episode.min()}-{df.episode.max()} ({df.episode.nunique()} "
+              "distinct: each seed is one initial state, and every variant meets the same ones)")
+    text = ["# The paper's claims at CPU scale", "", *[h for h in header if h], states, "",
             "Success in % over the episodes of each cell (95% Wilson interval); *clean_windows*: mask's windows with "
             "nothing corrupted (MLI imagines the cameras there: imagination's own cost); *blind*: no camera all "
             "episode (MLI: camera latents imagined from step 1). Pooled: every (training seed, episode) once.", ""]
