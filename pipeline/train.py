@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from omegaconf import OmegaConf
 
 from pipeline._hydra import run
@@ -16,9 +14,6 @@ def _app(cfg) -> None:
     from pipeline.evaluate import noise_windows
 
     t = typed(cfg.train, "train")  # nostra.configs.TrainConfig
-    if t.skip_finished and (Path(t.out_dir) / "run.json").is_file():
-        print(f"nostra train: {t.out_dir} finished before (run.json), kept")
-        return
     # data.collections may be one name (an interpolated list is not type-checked)
     t.collections = [t.collections] if isinstance(t.collections, str) else list(t.collections)
     if not t.collections:

@@ -181,6 +181,9 @@ def train(spec: TrainSpec) -> dict:
         raise ValueError("stage=finetune needs a pretrained checkpoint (train.init_from=<path>)")
     start = time.time()
     out = Path(t.out_dir)
+    if t.skip_finished and (out / "run.json").is_file():
+        print(f"nostra train: {out} finished before (run.json), kept")
+        return json.loads((out / "run.json").read_text())
     rollouts = _rollouts(spec, out)
     L.seed_everything(spec.seed, workers=True, verbose=False)
     store = Store(spec.store)
