@@ -33,12 +33,30 @@ def _nats(a: dict, modalities: list[str], episodes: list[int]) -> np.ndarray:
     return np.vstack([kl * steps, steps])
 
 
+def _kl(x: np.ndarray, j: int, idx: np.ndarray):
+    """Modality j's mean KL per step over episodes ``idx`` (a row of indices, or a batch of resampled rows)."""
+    return x[j][idx].sum(-1) / x[-1][idx].sum(-1)
+
+
+def _share(x: np.ndarray, j: int, idx: np.ndarray):
+    """Modality j's share of the total KL over episodes ``idx``."""
+    return x[j][idx].sum(-1) / x[:-1][:, idx].sum(axis=(0, -1))
+
+
+def _with_interval(stat, n: int, seed: int) -> tuple[float, float, float]:
+    """stat over all n episodes and its 95% percentile-bootstrap interval (episodes resampled)."""
+    from scipy.stats import bootstrap
+
+    idx = np.arange(n)
+    ci = bootstrap((idx,), lambda i, axis=-1: stat(i), vectorized=True, n_resamples=10_000, method="percentile",
+                   random_state=np.random.default_rng(seed)).confidence_interval
+    return float(stat(idx)), float(ci.low), float(ci.high)
+
+
 def view_changes(analyses: list[dict], seed: int = 0) -> pd.DataFrame:
     """Per paired run and modality: mean KL per step on each view, the occluded view's change in % of
     the good view's, each view's share of the total KL and the change in points, with 95% intervals
     over the common held-out episodes. Empty when no run has both arms with per-episode KL."""
-    from scipy.stats import bootstrap
-
     rows = []
     for run, good, occl in view_pairs(analyses):
         if "kl_nats_episodes" not in good or "kl_nats_episodes" not in occl:
@@ -47,23 +65,14 @@ def view_changes(analyses: list[dict], seed: int = 0) -> pd.DataFrame:
         modalities = [m for m in good["kl_nats_episodes"] if m in occl["kl_nats_episodes"]]
         if len(common) < 2 or not modalities:
             continue
-        g, o = _nats(good, modalities, common), _nats(occl, modalities, common)
+        g, o, every = _nats(good, modalities, common), _nats(occl, modalities, common), np.arange(len(common))
         for j, m in enumerate(modalities):
-            def kl(x, idx):  # mean KL per step over the resampled episodes
-                return x[j][idx].sum(-1) / x[-1][idx].sum(-1)
-
-            def share(x, idx):
-                return x[j][idx].sum(-1) / x[:-1][:, idx].sum(axis=(0, -1))
-
-            stats = {"kl_change_pct": lambda idx, axis=-1: 100 * (kl(o, idx) / kl(g, idx) - 1),
-                     "share_change_pts": lambda idx, axis=-1: 100 * (share(o, idx) - share(g, idx))}
-            all_idx = np.arange(len(common))
-            row = {"run": run, "episodes": len(common), "modality": m, "kl_good": kl(g, all_idx),
-                   "kl_occluded": kl(o, all_idx), "share_good": share(g, all_idx), "share_occluded": share(o, all_idx)}
-            for name, f in stats.items():
-                ci = bootstrap((all_idx,), f, vectorized=True, n_resamples=10_000, method="percentile",
-                               random_state=np.random.default_rng(seed)).confidence_interval
-                row.update({name: float(f(all_idx)), f"{name}_low": float(ci.low), f"{name}_high": float(ci.high)})
+            row = {"run": run, "episodes": len(common), "modality": m, "kl_good": _kl(g, j, every),
+                   "kl_occluded": _kl(o, j, every), "share_good": _share(g, j, every),
+                   "share_occluded": _share(o, j, every)}
+            for name, stat in (("kl_change_pct", lambda i: 100 * (_kl(o, j, i) / _kl(g, j, i) - 1)),
+                               ("share_change_pts", lambda i: 100 * (_share(o, j, i) - _share(g, j, i)))):
+                row[name], row[f"{name}_low"], row[f"{name}_high"] = _with_interval(stat, len(common), seed)
             rows.append(row)
     return pd.DataFrame(rows)
 
