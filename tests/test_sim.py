@@ -102,6 +102,15 @@ def test_variations_change_image_and_metadata(lift):
     assert robot_pixel_fraction(lift) > 0.5 > 0.2 > normal_share  # the arm fills most of the occluded view
     assert lift.metadata()["variation"]["occluded_agentview"] is True
 
+    # the blind view (Table 3's control) shows no robot and the same image whatever the arm or the seed does
+    blind = lift.reset(seed=0, variation=Variation(blind_agentview=True))["agentview_image"]
+    assert robot_pixel_fraction(lift) == 0.0 and np.abs(blind.astype(int) - base).mean() > 10
+    moved_arm = [lift.step(np.array([1.0, -1.0, 0.5, 0, 0, 0, 1.0]))[0]["agentview_image"] for _ in range(5)][-1]
+    assert np.array_equal(moved_arm, blind)
+    assert np.array_equal(lift.reset(seed=3, variation=Variation(blind_agentview=True))["agentview_image"], blind)
+    with pytest.raises(ValueError, match="set one"):
+        Variation(occluded_agentview=True, blind_agentview=True)
+
     lift.reset(seed=5, variation=Variation(placement_scale=1e-3))
     assert np.abs(lift.metadata()["object_placements"]["cube"][:2]).max() < 1e-3
 

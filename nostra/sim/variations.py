@@ -2,7 +2,9 @@
 
 A :class:`Variation` with all defaults changes nothing. ``sample_variation(ranges, rng)`` draws one
 from the ranges of a config (``conf/generate/default.yaml`` -> ``variation:``). The occluded agent
-view (paper Table 3) moves the agentview camera behind the robot so the arm fills most of the view.
+view (paper Table 3) moves the agentview camera behind the robot so the arm fills most of the view;
+the blind agent view (a control beyond the paper) turns it to the floor behind the robot, so it shows
+the same image at every step of every episode: a view with no information at all.
 """
 
 from __future__ import annotations
@@ -19,6 +21,10 @@ from nostra.sim import scene
 # Offsets from the robot base, metres.
 OCCLUDED_EYE = (-0.25, 0.0, 0.5)
 OCCLUDED_TARGET = (0.55, 0.0, 0.0)
+# Blind agentview: above the robot base, looking down and away from the workspace at the floor and the
+# back wall; nothing that moves is in view (the arm reaches forward, behind the camera).
+BLIND_EYE = (-0.5, 0.0, 0.6)
+BLIND_TARGET = (-1.4, 0.0, -0.6)
 
 
 @dataclass(frozen=True)
@@ -31,6 +37,7 @@ class Variation:
     object_scale: float = 1.0  # size of the task's free objects (recompiles the scene when it changes)
     placement_scale: float = 1.0  # scales the x/y ranges objects are placed in, about their centre
     occluded_agentview: bool = False  # robot blocks the agentview camera
+    blind_agentview: bool = False  # agentview faces the floor behind the robot: a constant image
 
     def __post_init__(self):
         for name in ("camera_pos_offset", "camera_rot_offset"):
@@ -44,7 +51,10 @@ class Variation:
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
             object.__setattr__(self, name, round(float(getattr(self, name)), 6))
-        object.__setattr__(self, "occluded_agentview", bool(self.occluded_agentview))
+        for name in ("occluded_agentview", "blind_agentview"):
+            object.__setattr__(self, name, bool(getattr(self, name)))
+        if self.occluded_agentview and self.blind_agentview:
+            raise ValueError("occluded_agentview and blind_agentview are two poses of the same camera: set one")
 
     def to_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
@@ -62,7 +72,9 @@ class Variation:
         model, cam = env.model, env.camera_id("agentview")
         pos, quat = model.cam_pos[cam].copy(), model.cam_quat[cam].copy()
         if self.occluded_agentview:
-            pos, quat = occluded_camera_pose(env)
+            pos, quat = agentview_pose(env, OCCLUDED_EYE, OCCLUDED_TARGET)
+        if self.blind_agentview:
+            pos, quat = agentview_pose(env, BLIND_EYE, BLIND_TARGET)
         scene.set_camera_pose(model, cam, pos + self.camera_pos_offset, scene.offset_quat(quat, self.camera_rot_offset))
         if self.table_texture is not None:
             env.set_table_texture(self.table_texture)
@@ -76,11 +88,11 @@ class Variation:
             sampler.y_range = scale_range(sampler.y_range, self.placement_scale)
 
 
-def occluded_camera_pose(env) -> tuple[np.ndarray, np.ndarray]:
-    """Agentview pose behind the robot, looking over its base at the workspace."""
+def agentview_pose(env, eye_offset, target_offset) -> tuple[np.ndarray, np.ndarray]:
+    """Agentview pose at an offset from the robot base, looking at another offset from it."""
     base = env.data.xpos[scene.body_id(env.model, "robot0_base")]
-    eye = base + np.asarray(OCCLUDED_EYE)
-    return eye, scene.look_at_quat(eye, base + np.asarray(OCCLUDED_TARGET))
+    eye = base + np.asarray(eye_offset)
+    return eye, scene.look_at_quat(eye, base + np.asarray(target_offset))
 
 
 ROBOT_PREFIXES = ("robot0_", "gripper0_", "fixed_mount0_")
@@ -121,6 +133,7 @@ RANGE_KEYS = {
     "object_scale": "[low, high] of the object size factor",
     "placement_scale": "[low, high] of the placement range factor",
     "occluded": "probability of the occluded agentview",
+    "blind": "probability of the blind agentview (faces the floor behind the robot; not with occluded)",
 }
 
 
@@ -140,6 +153,7 @@ def sample_variation(ranges: Mapping | None, rng: np.random.Generator) -> Variat
         object_scale=rng.uniform(*_pair(r.get("object_scale", (1.0, 1.0)), "object_scale")),
         placement_scale=rng.uniform(*_pair(r.get("placement_scale", (1.0, 1.0)), "placement_scale")),
         occluded_agentview=bool(rng.random() < float(r.get("occluded", 0.0))),
+        blind_agentview=bool(rng.random() < float(r.get("blind", 0.0))),
     )
 
 
