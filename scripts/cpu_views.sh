@@ -11,7 +11,10 @@
 # BETA=<KL weight> trains both arms here instead, at that beta, STEPS steps each (default 2000), with
 # the same schedule and no in-training rollouts, and pairs them over the held-out demos (same seeds):
 # reports/cpu/<task>/views/ (offline.md, views.csv). BETAS="1e-2 1e-4" runs one pair per beta.
+# VIEWS lists the arms trained beside the good view (default occluded): blind is a control beyond the
+# paper, the agent view facing the floor (the same image at every step, no information at all); with BETAS.
 #   TASK=liftd1 SEED=0 BETAS="1e-2 1e-4" bash scripts/cpu_views.sh
+#   TASK=liftd1 SEED=0 BETAS="1e-2 1e-4" VIEWS="occluded blind" bash scripts/cpu_views.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -20,6 +23,7 @@ SEED=${SEED:-0}
 NOISES=${NOISES:-mask}
 BETAS=${BETAS:-${BETA:-}}
 STEPS=${STEPS:-2000}
+VIEWS=${VIEWS:-occluded}
 OBS=rgb CAPACITY=configured source scripts/cpu_setup.sh   # PROFILE=cpu, RUNS=data/runs/cpu, collection
 COLL=${TASK}_occluded_cpu
 COMMON="profile=cpu task=$TASK paths.runs=$RUNS"
@@ -48,7 +52,10 @@ analyse() {  # $1 = checkpoint, $2 = collection, $3 = setting, $4 = output folde
 }
 
 collection ${TASK}_cpu $TASK
-collection $COLL $TASK generate.variation.occluded=1.0   # the good view's seeds: the same initial states
+for view in $VIEWS; do   # the good view's seeds: the same initial states
+  case $view in occluded|blind) ;; *) echo "$0: unknown view $view in VIEWS; valid: occluded, blind" >&2; exit 2 ;; esac
+  collection ${TASK}_${view}_cpu $TASK generate.variation.$view=1.0
+done
 if [ -z "$BETAS" ]; then   # the occluded arm against make cpu's good-view run (scripts/cpu_offline.sh)
   ROOT=$RUNS/offline/$TASK
   RUN=pretrain-nostra-${NAME}-occluded-s$SEED
@@ -68,14 +75,14 @@ PY
 fi
 ROOT=$RUNS/offline/$TASK-views
 for beta in $BETAS; do
-  for view in good occluded; do
+  for view in good $VIEWS; do
     tag=b$beta-s$SEED; coll=${TASK}_cpu; setting=good_view
-    [ $view = occluded ] && { tag=$tag-occluded; coll=$COLL; setting=occluded_view; }
+    [ $view = good ] || { tag=$tag-$view; coll=${TASK}_${view}_cpu; setting=${view}_view; }
     run=views-nostra-$NAME-$tag
     train $run $coll $STEPS model.loss.beta=$beta
     analyse $RUNS/train/$run/policy.ckpt $coll $setting $ROOT/$tag
   done
 done
 python -m nostra.workflows.offline_report --analyses "$ROOT" --out "reports/cpu/$TASK/views" \
-  --command "TASK=$TASK SEED=$SEED BETAS=\"$BETAS\" STEPS=$STEPS bash scripts/cpu_views.sh ($(( ($(date +%s) - start) / 60 )) min in this call)"
+  --command "TASK=$TASK SEED=$SEED BETAS=\"$BETAS\" STEPS=$STEPS VIEWS=\"$VIEWS\" bash scripts/cpu_views.sh ($(( ($(date +%s) - start) / 60 )) min in this call)"
 log "done: reports/cpu/$TASK/views/offline.md"

@@ -1,4 +1,4 @@
-"""Table 3's paired comparison: the occluded arm against the good arm over the episodes both analysed."""
+"""Table 3's paired comparison: the occluded (or blind) arm against the good arm over the episodes both analysed."""
 
 import json
 
@@ -21,13 +21,19 @@ OCCLUDED = _arm([3, 7, 2, 1, 0], [2.0, 99.0, 1.0, 3.0, 2.0], [2.0, 99.0, 2.0, 2.
 def test_occluded_arm_is_compared_on_the_common_episodes_step_weighted():
     changes = view_changes([{"name": "b1e-2-s0/mask", **GOOD}, {"name": "b1e-2-s0-occluded/mask", **OCCLUDED}])
     agent = changes.set_index("modality").loc["agentview_image"]
-    assert agent.episodes == 4
-    assert agent.kl_good == pytest.approx(190 / 50) and agent.kl_occluded == pytest.approx(90 / 50)
+    assert agent.episodes == 4 and agent.view == "occluded"
+    assert agent.kl_good == pytest.approx(190 / 50) and agent.kl_view == pytest.approx(90 / 50)
     assert agent.kl_change_pct == pytest.approx(100 * (90 / 190 - 1))
     assert agent.share_change_pts == pytest.approx(100 * (90 / 190 - 190 / 240))
     assert agent.kl_change_pct_low <= agent.kl_change_pct <= agent.kl_change_pct_high < 0
     pos = changes.set_index("modality").loc["pos"]
     assert pos.kl_change_pct == pytest.approx(100) and pos.share_change_pts > 0
+
+
+def test_occluded_and_blind_arms_are_each_paired_with_the_good_arm():
+    changes = view_changes([{"name": "s0/mask", **GOOD}, {"name": "s0-occluded/mask", **OCCLUDED},
+                            {"name": "s0-blind/mask", **OCCLUDED}, {"name": "s1-blind/mask", **OCCLUDED}])
+    assert sorted(set(zip(changes.run, changes.view))) == [("s0", "blind"), ("s0", "occluded")]
 
 
 def test_a_run_without_its_other_arm_or_per_episode_kl_is_not_compared():
@@ -48,4 +54,4 @@ def test_report_shows_the_paired_table_and_writes_views_csv(tmp_path):
     text = (tmp_path / "out/offline.md").read_text()
     assert "`b1e-2-s0` vs `b1e-2-s0-occluded` (4 episodes)" in text
     assert "| agentview_image | 3.80 | 1.80 | -53% [" in text and "| 79.2% | 47.4% | -31.8 [" in text
-    assert (tmp_path / "out/views.csv").read_text().startswith("run,episodes,modality,")
+    assert (tmp_path / "out/views.csv").read_text().startswith("run,view,episodes,modality,")

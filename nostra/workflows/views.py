@@ -1,27 +1,34 @@
-"""Table 3's comparison, paired: BC-NOSTRA trained on the occluded agent view against the same
-training on the good view, over the held-out demos both analysed. The occluded collection is
-generated on the good one's seeds, so held-out episode i starts from the same state in both and the
-two runs' per-episode KL can be resampled together (percentile bootstrap, scipy.stats.bootstrap).
+"""Table 3's comparison, paired: BC-NOSTRA trained on another agent view (occluded: the robot blocks
+the camera, as in the paper; blind: the camera faces the floor, a control with no information at all)
+against the same training on the good view, over the held-out demos both analysed. The other view's
+collection is generated on the good one's seeds, so held-out episode i starts from the same state in
+both and the two runs' per-episode KL can be resampled together (percentile bootstrap,
+scipy.stats.bootstrap).
 
-An analysis folder (under offline_report's --analyses) named ``<run>-occluded`` is paired with the
-one named ``<run>``; offline.json must carry the per-episode KL (``kl_nats_episodes``)."""
+An analysis folder (under offline_report's --analyses) named ``<run>-occluded`` or ``<run>-blind`` is
+paired with the one named ``<run>``; offline.json must carry the per-episode KL (``kl_nats_episodes``)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pandas as pd
 
-OCCLUDED = "-occluded"
+VIEWS = ("occluded", "blind")  # run-name suffixes of the arms compared with the good view
 
 
-def view_pairs(analyses: list[dict]) -> list[tuple[str, dict, dict]]:
-    """(good run's name, its analysis, the occluded run's analysis) for every run with both arms;
-    one analysis per run (the clean KL does not depend on the analysis's noise)."""
+def view_pairs(analyses: list[dict]) -> list[tuple[str, dict, str, dict]]:
+    """(good run's name, its analysis, the other view, that run's analysis) for every run with both
+    arms; one analysis per run (the clean KL does not depend on the analysis's noise)."""
     by_run: dict[str, dict] = {}
     for a in analyses:
         by_run.setdefault(a["name"].split("/")[0], a)
-    return [(r.removesuffix(OCCLUDED), by_run[r.removesuffix(OCCLUDED)], a) for r, a in by_run.items()
-            if r.endswith(OCCLUDED) and r.removesuffix(OCCLUDED) in by_run]
+    pairs = []
+    for r, a in by_run.items():
+        for view in VIEWS:
+            good = r.removesuffix(f"-{view}")
+            if r.endswith(f"-{view}") and good in by_run:
+                pairs.append((good, by_run[good], view, a))
+    return pairs
 
 
 def _nats(a: dict, modalities: list[str], episodes: list[int]) -> np.ndarray:
@@ -54,11 +61,11 @@ def _with_interval(stat, n: int, seed: int) -> tuple[float, float, float]:
 
 
 def view_changes(analyses: list[dict], seed: int = 0) -> pd.DataFrame:
-    """Per paired run and modality: mean KL per step on each view, the occluded view's change in % of
-    the good view's, each view's share of the total KL and the change in points, with 95% intervals
-    over the common held-out episodes. Empty when no run has both arms with per-episode KL."""
+    """Per paired run, other view and modality: mean KL per step on each view, the other view's change
+    in % of the good view's, each view's share of the total KL and the change in points, with 95%
+    intervals over the common held-out episodes. Empty when no run has both arms with per-episode KL."""
     rows = []
-    for run, good, occl in view_pairs(analyses):
+    for run, good, view, occl in view_pairs(analyses):
         if "kl_nats_episodes" not in good or "kl_nats_episodes" not in occl:
             continue
         common = sorted({int(e[1]) for e in good["episodes"]} & {int(e[1]) for e in occl["episodes"]})
@@ -67,9 +74,8 @@ def view_changes(analyses: list[dict], seed: int = 0) -> pd.DataFrame:
             continue
         g, o, every = _nats(good, modalities, common), _nats(occl, modalities, common), np.arange(len(common))
         for j, m in enumerate(modalities):
-            row = {"run": run, "episodes": len(common), "modality": m, "kl_good": _kl(g, j, every),
-                   "kl_occluded": _kl(o, j, every), "share_good": _share(g, j, every),
-                   "share_occluded": _share(o, j, every)}
+            row = {"run": run, "view": view, "episodes": len(common), "modality": m, "kl_good": _kl(g, j, every),
+                   "kl_view": _kl(o, j, every), "share_good": _share(g, j, every), "share_view": _share(o, j, every)}
             for name, stat in (("kl_change_pct", lambda i: 100 * (_kl(o, j, i) / _kl(g, j, i) - 1)),
                                ("share_change_pts", lambda i: 100 * (_share(o, j, i) - _share(g, j, i)))):
                 row[name], row[f"{name}_low"], row[f"{name}_high"] = _with_interval(stat, len(common), seed)
@@ -81,19 +87,20 @@ def markdown(changes: pd.DataFrame) -> list[str]:
     """The paired comparison as Markdown lines (none when there is nothing to compare)."""
     if not len(changes):
         return []
-    lines = ["## The occluded view against the good view, paired (Table 3)", "",
-             "Each run trained twice on the same seeds' demos, once with the agent view occluded; mean KL per "
-             "step over the held-out demos both arms analysed (same initial states), the occluded arm's change "
-             "in % of the good arm's, and each modality's share of the total KL; 95% percentile-bootstrap "
-             "intervals over those episodes, resampled together. The paper: the occluded view's KL falls "
-             "(by up to 32%) while the other modalities' rise.", ""]
-    for run, g in changes.groupby("run", sort=False):
-        lines += [f"`{run}` vs `{run}{OCCLUDED}` ({int(g.episodes.iloc[0])} episodes)", "",
-                  "| modality | KL good (nats) | KL occluded | change | share good | share occluded | change (points) |",
+    lines = ["## Another agent view against the good view, paired (Table 3)", "",
+             "Each run trained again on the same seeds' demos with the agent view occluded (the robot blocks it, "
+             "as in the paper) or blind (it faces the floor: the same image at every step, a control); mean KL "
+             "per step over the held-out demos both arms analysed (same initial states), the other arm's "
+             "change in % of the good arm's, and each modality's share of the total KL; 95% "
+             "percentile-bootstrap intervals over those episodes, resampled together. The paper: the occluded "
+             "view's KL falls (by up to 32%) while the other modalities' rise.", ""]
+    for (run, view), g in changes.groupby(["run", "view"], sort=False):
+        lines += [f"`{run}` vs `{run}-{view}` ({int(g.episodes.iloc[0])} episodes)", "",
+                  f"| modality | KL good (nats) | KL {view} | change | share good | share {view} | change (points) |",
                   "|---|---|---|---|---|---|---|"]
-        lines += [f"| {r.modality} | {r.kl_good:.2f} | {r.kl_occluded:.2f} | {r.kl_change_pct:+.0f}% "
+        lines += [f"| {r.modality} | {r.kl_good:.2f} | {r.kl_view:.2f} | {r.kl_change_pct:+.0f}% "
                   f"[{r.kl_change_pct_low:+.0f}, {r.kl_change_pct_high:+.0f}] | {100 * r.share_good:.1f}% | "
-                  f"{100 * r.share_occluded:.1f}% | {r.share_change_pts:+.1f} [{r.share_change_pts_low:+.1f}, "
+                  f"{100 * r.share_view:.1f}% | {r.share_change_pts:+.1f} [{r.share_change_pts_low:+.1f}, "
                   f"{r.share_change_pts_high:+.1f}] |" for r in g.itertuples()]
         lines.append("")
     return lines
