@@ -55,3 +55,4 @@ def test_report_shows_the_paired_table_and_writes_views_csv(tmp_path):
     assert "`b1e-2-s0` vs `b1e-2-s0-occluded` (4 episodes)" in text
     assert "| agentview_image | 3.80 | 1.80 | -53% [" in text and "| 79.2% | 47.4% | -31.8 [" in text
     assert (tmp_path / "out/views.csv").read_text().startswith("run,view,episodes,modality,")
+    assert (tmp_path / "out/views.png").read_bytes().startswith(b"\x89PNG") and "![views](views.png)" in text

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from nostra.workflows.views import figure as views_figure
 from nostra.workflows.views import markdown as views_markdown
 from nostra.workflows.views import view_changes
 
@@ -257,6 +258,7 @@ def main(argv: list[str] | None = None) -> None:
     changes = view_changes(analyses)
     if len(changes):
         changes.to_csv(args.out / "views.csv", index=False)
+        views_figure(changes, args.out / "views.png")
     pairs = pd.DataFrame()
     if args.rollouts is not None:
         pairs = paired_thresholds(sweep, args.rollouts)

@@ -83,6 +83,39 @@ def view_changes(analyses: list[dict], seed: int = 0) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def figure(changes: pd.DataFrame, path) -> None:
+    """Each modality's KL change against the good view, one panel per run, one bar per other view,
+    with the 95% intervals; the paper's range for the occluded agent view shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = list(dict.fromkeys(changes.run))
+    fig, axes = plt.subplots(1, len(runs), figsize=(4.5 * len(runs), 3.6), sharey=True, squeeze=False)
+    for ax, run in zip(axes[0], runs):
+        g = changes[changes.run == run]
+        modalities, views = list(dict.fromkeys(g.modality)), list(dict.fromkeys(g.view))
+        width = 0.8 / len(views)
+        for k, view in enumerate(views):
+            v = g[g.view == view].set_index("modality").loc[modalities]
+            x = np.arange(len(modalities)) + (k - (len(views) - 1) / 2) * width
+            ax.bar(x, v.kl_change_pct, width, label=view,
+                   yerr=[v.kl_change_pct - v.kl_change_pct_low, v.kl_change_pct_high - v.kl_change_pct], capsize=3)
+        if "agentview_image" in modalities:
+            i = modalities.index("agentview_image")
+            ax.fill_between([i - 0.45, i + 0.45], -32, -10, color="0.8", zorder=0, label="paper (occluded)")
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xticks(np.arange(len(modalities)), [m.replace("robot0_", "") for m in modalities], rotation=30,
+                      ha="right", fontsize=8)
+        ax.set_title(run, fontsize=9)
+    axes[0][0].set_ylabel("KL change vs good view (%)")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def markdown(changes: pd.DataFrame) -> list[str]:
     """The paired comparison as Markdown lines (none when there is nothing to compare)."""
     if not len(changes):
@@ -93,7 +126,7 @@ def markdown(changes: pd.DataFrame) -> list[str]:
              "per step over the held-out demos both arms analysed (same initial states), the other arm's "
              "change in % of the good arm's, and each modality's share of the total KL; 95% "
              "percentile-bootstrap intervals over those episodes, resampled together. The paper: the occluded "
-             "view's KL falls (by up to 32%) while the other modalities' rise.", ""]
+             "view's KL falls (by up to 32%) while the other modalities' rise.", "", "![views](views.png)", ""]
     for (run, view), g in changes.groupby(["run", "view"], sort=False):
         lines += [f"`{run}` vs `{run}-{view}` ({int(g.episodes.iloc[0])} episodes)", "",
                   f"| modality | KL good (nats) | KL {view} | change | share good | share {view} | change (points) |",
