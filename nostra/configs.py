@@ -223,7 +223,8 @@ class OfflineConfig:
     checkpoint: str = ""
     collections: list[str] = field(default_factory=list)
     noise: str = "rgb"               # mask | depth_mask | proprio_zero | proprio_stuck | rgb | rgbd | all
-    episodes: int = 8                # held-out demos (the training run's validation split)
+    episodes: int = 8                # demos of the training run's split (below), the first ones
+    split: str = "held_out"          # held_out (never trained on) | train (the demos it trained on)
     windows: list[list[int]] | None = None   # None: the middle third of each demo
     setting: str = "default"         # Table 3 column: the data the policy was trained on
     adamli: Any = None               # AdaMLI's thresholds, as in VariantConfig; None: the paper's

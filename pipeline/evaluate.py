@@ -44,21 +44,21 @@ def _run_dir(checkpoint: str) -> Path:
 
 def _offline(cfg, e) -> None:
     from nostra.workflows.analysis import OfflineSpec, analyse
-    from nostra.data.dataset import held_out_episodes
+    from nostra.data.dataset import run_episodes
     from nostra.workflows.tracking import Tracker
 
     o = e.offline
     collections = o.collections
-    held_out = held_out_episodes(_run_dir(o.checkpoint), collections)  # the training run's own split
-    if not held_out:
-        raise ValueError(f"{o.checkpoint}: its training run held out no episode of {collections}")
-    spec = OfflineSpec(checkpoint=o.checkpoint, store=cfg.data.store, episodes=held_out[: o.episodes],
-                       noise=o.noise, windows=o.windows,
+    episodes = run_episodes(_run_dir(o.checkpoint), collections, o.split)  # the training run's own split
+    if not episodes:
+        raise ValueError(f"{o.checkpoint}: its training run's {o.split} split has no episode of {collections}")
+    spec = OfflineSpec(checkpoint=o.checkpoint, store=cfg.data.store, episodes=episodes[: o.episodes],
+                       split=o.split, noise=o.noise, windows=o.windows,
                        out_dir=str(Path(e.out_dir) / "offline"), seed=cfg.seed,
                        noise_params=e.noise_params, adamli=dict(o.adamli or {}))
     result = analyse(spec)
     tracker = Tracker(e.experiment, f"offline-{'-'.join(e.tasks)}", spec.out_dir,
-                      {"checkpoint": o.checkpoint, "noise": o.noise, "episodes": len(spec.episodes),
+                      {"checkpoint": o.checkpoint, "noise": o.noise, "episodes": len(spec.episodes), "split": o.split,
                        "profile": cfg.profile.name, "task": ",".join(e.tasks), "seed": cfg.seed, "model": "nostra",
                        "setting": o.setting})
     metrics = {f"kl_nats/{m}": v for m, v in result["kl_nats"].items()}

@@ -13,6 +13,8 @@
 # reports/cpu/<task>/views/ (offline.md, views.csv). BETAS="1e-2 1e-4" runs one pair per beta.
 # VIEWS lists the arms trained beside the good view (default occluded): blind is a control beyond the
 # paper, the agent view facing the floor (the same image at every step, no information at all); with BETAS.
+# SPLITS lists which demos each arm is analysed on (default both): held_out (never trained on) and
+# train (the demos it trained on: the training-set KL), one report each (views/, views-train/).
 #   TASK=liftd1 SEED=0 BETAS="1e-2 1e-4" bash scripts/cpu_views.sh
 #   TASK=liftd1 SEED=0 BETAS="1e-2 1e-4" VIEWS="occluded blind" bash scripts/cpu_views.sh
 set -euo pipefail
@@ -24,6 +26,10 @@ NOISES=${NOISES:-mask}
 BETAS=${BETAS:-${BETA:-}}
 STEPS=${STEPS:-2000}
 VIEWS=${VIEWS:-occluded}
+SPLITS=${SPLITS:-held_out train}
+for split in $SPLITS; do
+  case $split in held_out|train) ;; *) echo "$0: unknown split $split in SPLITS; valid: held_out, train" >&2; exit 2 ;; esac
+done
 OBS=rgb CAPACITY=configured source scripts/cpu_setup.sh   # PROFILE=cpu, RUNS=data/runs/cpu, collection
 COLL=${TASK}_occluded_cpu
 COMMON="profile=cpu task=$TASK paths.runs=$RUNS"
@@ -40,14 +46,16 @@ train() {  # $1 = run, $2 = collection, $3 = steps, $4... = overrides
     train.max_steps=$steps train.max_minutes=null train.rollout.every=0 "$@"
 }
 
-analyse() {  # $1 = checkpoint, $2 = collection, $3 = setting, $4 = output folder (one per noise below it)
+analyse() {  # $1 = checkpoint, $2 = collection, $3 = setting, $4 = output folder (one per noise below it), $5 = split
+  local split=${5:-held_out}
   for noise in $NOISES; do
     local out=$4/$noise
     [ -f "$out/offline/offline.json" ] && { log "offline $4 $noise: done before, kept"; continue; }
     log "offline $4 $noise"
     nostra evaluate $COMMON seed=$SEED evaluate.rollouts=false evaluate.offline.checkpoint=$1 \
       "evaluate.offline.collections=[$2]" evaluate.offline.noise=$noise evaluate.offline.episodes=20 \
-      "evaluate.offline.windows=$WINDOWS" evaluate.offline.setting=$3 evaluate.out_dir=$out
+      "evaluate.offline.windows=$WINDOWS" evaluate.offline.setting=$3 evaluate.offline.split=$split \
+      evaluate.out_dir=$out
   done
 }
 
@@ -73,16 +81,19 @@ PY
   log "done: reports/cpu/$TASK/offline/offline.md"
   exit 0
 fi
-ROOT=$RUNS/offline/$TASK-views
+root() { [ "$1" = held_out ] && echo "$RUNS/offline/$TASK-views" || echo "$RUNS/offline/$TASK-views-$1"; }
 for beta in $BETAS; do
   for view in good $VIEWS; do
     tag=b$beta-s$SEED; coll=${TASK}_cpu; setting=good_view
     [ $view = good ] || { tag=$tag-$view; coll=${TASK}_${view}_cpu; setting=${view}_view; }
     run=views-nostra-$NAME-$tag
     train $run $coll $STEPS model.loss.beta=$beta
-    analyse $RUNS/train/$run/policy.ckpt $coll $setting $ROOT/$tag
+    for split in $SPLITS; do analyse $RUNS/train/$run/policy.ckpt $coll $setting "$(root $split)/$tag" $split; done
   done
 done
-python -m nostra.workflows.offline_report --analyses "$ROOT" --out "reports/cpu/$TASK/views" \
-  --command "TASK=$TASK SEED=$SEED BETAS=\"$BETAS\" STEPS=$STEPS VIEWS=\"$VIEWS\" bash scripts/cpu_views.sh ($(( ($(date +%s) - start) / 60 )) min in this call)"
-log "done: reports/cpu/$TASK/views/offline.md"
+for split in $SPLITS; do
+  out=reports/cpu/$TASK/views; [ $split = held_out ] || out=$out-$split
+  python -m nostra.workflows.offline_report --analyses "$(root $split)" --out "$out" --command "TASK=$TASK SEED=$SEED \
+BETAS=\"$BETAS\" STEPS=$STEPS VIEWS=\"$VIEWS\" SPLITS=\"$SPLITS\" bash scripts/cpu_views.sh ($(( ($(date +%s) - start) / 60 )) min in this call)"
+  log "done: $out/offline.md"
+done

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from conftest import small_net, train_spec
-from nostra.data.dataset import held_out_episodes, split_episodes
+from nostra.data.dataset import held_out_episodes, run_episodes, split_episodes
 from fixtures import write_robomimic
 from nostra.data.store import Store
 from nostra.policies.checkpoint import CheckpointError, load_runner
@@ -55,6 +55,7 @@ def test_pretrain_tracks_checkpoints_and_resumes(store, tmp_path):
     # the run's own split, which evaluation's offline analysis reads instead of recomputing it
     assert held_out_episodes(out) == split_episodes(store, ["target"], 0.1, 0)[1] != []
     assert held_out_episodes(out, ["library"]) == []
+    assert run_episodes(out, ["target"], "train") == split_episodes(store, ["target"], 0.1, 0)[0] != []
     # a re-run with more steps continues from last.ckpt instead of starting over
     again = train(spec(store, out, run_name="pre", max_steps=9))
     assert again["steps"] == 9
@@ -66,6 +67,9 @@ def test_held_out_episodes_of_a_run_without_a_split(tmp_path):
     (tmp_path / "episodes.json").write_text('{"train": []}')
     with pytest.raises(ValueError, match="episodes.json: not an episode split"):
         held_out_episodes(tmp_path)
+    assert run_episodes(tmp_path, part="train") == []
+    with pytest.raises(ValueError, match="'valid' unknown; valid: held_out, train"):
+        run_episodes(tmp_path, part="valid")
 
 
 def test_finetune_and_cotrain(store, tmp_path):

@@ -56,3 +56,28 @@ def test_report_shows_the_paired_table_and_writes_views_csv(tmp_path):
     assert "| agentview_image | 3.80 | 1.80 | -53% [" in text and "| 79.2% | 47.4% | -31.8 [" in text
     assert (tmp_path / "out/views.csv").read_text().startswith("run,view,episodes,modality,")
     assert (tmp_path / "out/views.png").read_bytes().startswith(b"\x89PNG") and "![views](views.png)" in text
+
+
+def test_training_kl_traces_are_read_beside_the_checkpoint(tmp_path):
+    from nostra.workflows.views import training_kl, traces_figure
+
+    analyses = []
+    for name, arm, kl in (("s0", GOOD, [3.0, 2.0]), ("s0-blind", OCCLUDED, [1.0, 0.5])):
+        run = tmp_path / name
+        run.mkdir()
+        lines = [{"params": {"model": "nostra"}}, {"step": 5, "metrics": {"train/loss": 1.0}}]
+        lines += [{"step": 10 * (i + 1), "metrics": {"kl_nats/agentview_image": v}} for i, v in enumerate(kl)]
+        (run / "metrics.jsonl").write_text("\n".join(json.dumps(x) for x in lines) + "\n")
+        analyses.append({"name": f"{name}/mask", "checkpoint": str(run / "policy.ckpt"), **arm})
+    assert training_kl(analyses[1]["checkpoint"], "agentview_image").to_dict() == {10: 1.0, 20: 0.5}
+    assert traces_figure(analyses, tmp_path / "t.png") and (tmp_path / "t.png").stat().st_size > 1000
+    assert not traces_figure([{**a, "checkpoint": str(tmp_path / "gone/policy.ckpt")} for a in analyses],
+                             tmp_path / "none.png")
+
+
+def test_the_report_names_the_demos_the_analyses_replayed():
+    from nostra.workflows.offline_report import demos_word
+
+    assert demos_word([{"name": "a"}]) == "held-out"  # offline.json from before the split was recorded
+    assert demos_word([{"split": "train"}, {"split": "train"}]) == "training"
+    assert demos_word([{"split": "train"}, {"split": "held_out"}]) == "held-out and training"

@@ -409,12 +409,22 @@ def save_split(path, train: list[tuple[str, int]], val: list[tuple[str, int]]) -
 
 def held_out_episodes(run_dir, collections: Iterable[str] | None = None) -> list[tuple[str, int]]:
     """The episodes a training run held out (its ``episodes.json``), optionally of some collections."""
+    return run_episodes(run_dir, collections, "held_out")
+
+
+SPLIT_PARTS = ("held_out", "train")
+
+
+def run_episodes(run_dir, collections: Iterable[str] | None = None, part: str = "held_out") -> list[tuple[str, int]]:
+    """The episodes a training run held out or trained on (``part``), optionally of some collections."""
+    if part not in SPLIT_PARTS:
+        raise ValueError(f"episode split part {part!r} unknown; valid: {', '.join(SPLIT_PARTS)}")
     path = Path(run_dir) / SPLIT_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no episode split; the training run that made {run_dir} writes it "
                                 "(runs trained before it existed: train again)")
     try:
-        pairs = [(str(c), int(i)) for c, i in json.loads(path.read_text())["held_out"]]
+        pairs = [(str(c), int(i)) for c, i in json.loads(path.read_text())[part]]
     except (ValueError, KeyError, TypeError) as e:
         raise ValueError(f"{path}: not an episode split ({{'train': [[collection, index], ...], "
                          f"'held_out': [...]}}): {e}") from e

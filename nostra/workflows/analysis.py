@@ -33,7 +33,8 @@ OFFLINE_NOISES = ("mask", "depth_mask", "proprio_zero", "proprio_stuck", "rgb", 
 class OfflineSpec:
     checkpoint: str
     store: str
-    episodes: list            # (collection, episode) pairs, held out from training
+    episodes: list            # (collection, episode) pairs, held out from training (or trained on: split)
+    split: str = "held_out"   # which of the training run's episodes they are (recorded in offline.json)
     noise: str = "mask"
     windows: list | None = None   # None: one window over the middle third of each episode
     out_dir: str = "offline"
@@ -130,7 +131,7 @@ def analyse(spec: OfflineSpec) -> dict:
         result["detect"]["all"] = detection_scores(np.concatenate([flags[m] for m in names]),
                                                    np.concatenate([truth[m] for m in names]))
     (out / "offline.md").write_text(markdown(result, spec))
-    (out / "offline.json").write_text(json.dumps({"noise": spec.noise, "checkpoint": spec.checkpoint,
+    (out / "offline.json").write_text(json.dumps({"noise": spec.noise, "checkpoint": spec.checkpoint, "split": spec.split,
                                                   "episodes": [list(e) for e in spec.episodes],
                                                   "adamli": dataclasses.asdict(AdaMLIConfig.from_dict(spec.adamli)), **result}, indent=1))
     return result
@@ -160,7 +161,8 @@ def _err(actions: np.ndarray, target: np.ndarray, inside: np.ndarray) -> float:
 
 
 def markdown(result: dict, spec: OfflineSpec) -> str:
-    lines = [f"## Offline analysis: noise `{spec.noise}` on {len(spec.episodes)} held-out demos", "",
+    demos = "held-out" if spec.split == "held_out" else "training"
+    lines = [f"## Offline analysis: noise `{spec.noise}` on {len(spec.episodes)} {demos} demos", "",
              "| variant | action MSE inside the windows |", "|---|---|"]
     lines += [f"| {v} | {e:.4f} |" for v, e in result["action_mse"].items()]
     if result["kl_nats"]:

@@ -21,6 +21,7 @@ import pandas as pd
 
 from nostra.workflows.views import figure as views_figure
 from nostra.workflows.views import markdown as views_markdown
+from nostra.workflows.views import traces_figure
 from nostra.workflows.views import view_changes
 
 
@@ -176,10 +177,10 @@ def _score(x) -> str:
 
 def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict[str, str] | None = None,
              sweep: pd.DataFrame | None = None, pairs: pd.DataFrame | None = None,
-             changes: pd.DataFrame | None = None) -> str:
-    lines = ["# Where the nats go, and what AdaMLI detects (offline, held-out demos)", "", f"`{command}`", "",
-             "## Per-modality KL on the clean held-out demos (Table 3)", "",
-             "Mean KL per step in nats, 95% t-interval over the held-out episodes, share of the total.", ""]
+             changes: pd.DataFrame | None = None, traces: bool = False, demos: str = "held-out") -> str:
+    lines = [f"# Where the nats go, and what AdaMLI detects (offline, {demos} demos)", "", f"`{command}`", "",
+             f"## Per-modality KL on the clean {demos} demos (Table 3)", "",
+             f"Mean KL per step in nats, 95% t-interval over the {demos} episodes, share of the total.", ""]
     for ckpt, g in kl.groupby("checkpoint", sort=False):
         lines += [f"`{ckpt}` ({int(g.episodes.iloc[0])} episodes)", "", "| modality | KL (nats) | 95% CI | share |",
                   "|---|---|---|---|"]
@@ -194,7 +195,7 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
         lines += [f"| {m} | " + " | ".join(f"{100 * v:.0f}%" for v in row) + " |" for m, row in shares.iterrows()]
         lines.append("")
     if changes is not None:
-        lines += views_markdown(changes)
+        lines += views_markdown(changes, traces)
     lines += ["## AdaMLI detection per noise", "",
               "Per-step precision and recall of AdaMLI's imagination flags against the injected windows; false "
               "imagination: share of the clean demos' steps on which AdaMLI imagines the modality.", ""]
@@ -239,6 +240,13 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
     return "\n".join(lines)
 
 
+def demos_word(analyses: list[dict]) -> str:
+    """Which of the training runs' demos the analyses replayed (older offline.json: held out)."""
+    splits = sorted({a.get("split", "held_out") for a in analyses})
+    return {"held_out": "held-out", "train": "training"}.get(splits[0], splits[0]) if len(splits) == 1 else \
+        "held-out and training"
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--analyses", type=Path, required=True)
@@ -255,10 +263,11 @@ def main(argv: list[str] | None = None) -> None:
     detect.to_csv(args.out / "detection.csv", index=False)
     command = args.command or f"python -m nostra.workflows.offline_report --analyses {args.analyses} --out {args.out}"
     figures, sweep = ({} if args.no_figures else copy_figures(analyses, args.out)), sweep_table(analyses)
-    changes = view_changes(analyses)
+    changes, traces = view_changes(analyses), False
     if len(changes):
         changes.to_csv(args.out / "views.csv", index=False)
         views_figure(changes, args.out / "views.png")
+        traces = traces_figure(analyses, args.out / "views_training.png")
     pairs = pd.DataFrame()
     if args.rollouts is not None:
         pairs = paired_thresholds(sweep, args.rollouts)
@@ -268,7 +277,8 @@ def main(argv: list[str] | None = None) -> None:
         sweep_figure(sweep, args.out / "adamli_sweep.png")
     if len(pairs):
         pairs.to_csv(args.out / "adamli_paired.csv", index=False)
-    (args.out / "offline.md").write_text(markdown(kl, detect, command, figures, sweep, pairs, changes))
+    (args.out / "offline.md").write_text(markdown(kl, detect, command, figures, sweep, pairs, changes, traces,
+                                                     demos_word(analyses)))
     print(args.out / "offline.md")
 
 

@@ -1,14 +1,17 @@
 """Table 3's comparison, paired: BC-NOSTRA trained on another agent view (occluded: the robot blocks
 the camera, as in the paper; blind: the camera faces the floor, a control with no information at all)
-against the same training on the good view, over the held-out demos both analysed. The other view's
-collection is generated on the good one's seeds, so held-out episode i starts from the same state in
-both and the two runs' per-episode KL can be resampled together (percentile bootstrap,
-scipy.stats.bootstrap).
+against the same training on the good view, over the demos both analysed (held out, or trained on:
+evaluate.offline.split). The other view's collection is generated on the good one's seeds, so
+episode i starts from the same state in both and the two runs' per-episode KL can be resampled
+together (percentile bootstrap, scipy.stats.bootstrap).
 
 An analysis folder (under offline_report's --analyses) named ``<run>-occluded`` or ``<run>-blind`` is
 paired with the one named ``<run>``; offline.json must carry the per-episode KL (``kl_nats_episodes``)."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -63,7 +66,7 @@ def _with_interval(stat, n: int, seed: int) -> tuple[float, float, float]:
 def view_changes(analyses: list[dict], seed: int = 0) -> pd.DataFrame:
     """Per paired run, other view and modality: mean KL per step on each view, the other view's change
     in % of the good view's, each view's share of the total KL and the change in points, with 95%
-    intervals over the common held-out episodes. Empty when no run has both arms with per-episode KL."""
+    intervals over the common analysed episodes. Empty when no run has both arms with per-episode KL."""
     rows = []
     for run, good, view, occl in view_pairs(analyses):
         if "kl_nats_episodes" not in good or "kl_nats_episodes" not in occl:
@@ -116,17 +119,61 @@ def figure(changes: pd.DataFrame, path) -> None:
     plt.close(fig)
 
 
-def markdown(changes: pd.DataFrame) -> list[str]:
+def training_kl(checkpoint: str, modality: str) -> pd.Series:
+    """A modality's KL per step over training (metrics.jsonl beside the checkpoint), by step; empty
+    when the run's metrics are not there."""
+    path = Path(checkpoint).parent / "metrics.jsonl"
+    if not path.exists():
+        return pd.Series(dtype=float)
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    kl = {r["step"]: r["metrics"][f"kl_nats/{modality}"] for r in rows
+          if f"kl_nats/{modality}" in r.get("metrics", {})}
+    return pd.Series(kl, dtype=float).sort_index()
+
+
+def traces_figure(analyses: list[dict], path, modality: str = "agentview_image", smooth: int = 10) -> bool:
+    """The agent view's KL over training, one panel per paired run, one line per view (running mean
+    over ``smooth`` logged steps); False (nothing written) when no paired run's metrics are found."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels: dict[str, dict[str, pd.Series]] = {}
+    for run, good, view, other in view_pairs(analyses):
+        for name, a in (("good", good), (view, other)):
+            kl = training_kl(a["checkpoint"], modality)
+            if len(kl):
+                panels.setdefault(run, {})[name] = kl.rolling(smooth, min_periods=1).mean()
+    if not panels:
+        return False
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.4), sharey=True, squeeze=False)
+    for ax, (run, lines) in zip(axes[0], panels.items()):
+        for name, kl in lines.items():
+            ax.plot(kl.index, kl.values, label=name)
+        ax.set_title(run, fontsize=9), ax.set_xlabel("training step")
+    axes[0][0].set_ylabel(f"{modality} KL per step (nats)")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return True
+
+
+def markdown(changes: pd.DataFrame, traces: bool = False) -> list[str]:
     """The paired comparison as Markdown lines (none when there is nothing to compare)."""
     if not len(changes):
         return []
     lines = ["## Another agent view against the good view, paired (Table 3)", "",
              "Each run trained again on the same seeds' demos with the agent view occluded (the robot blocks it, "
              "as in the paper) or blind (it faces the floor: the same image at every step, a control); mean KL "
-             "per step over the held-out demos both arms analysed (same initial states), the other arm's "
+             "per step over the demos both arms analysed (same initial states), the other arm's "
              "change in % of the good arm's, and each modality's share of the total KL; 95% "
              "percentile-bootstrap intervals over those episodes, resampled together. The paper: the occluded "
              "view's KL falls (by up to 32%) while the other modalities' rise.", "", "![views](views.png)", ""]
+    if traces:
+        lines += ["The agent view's KL over training (each arm on its own training batches):", "",
+                  "![views_training](views_training.png)", ""]
     for (run, view), g in changes.groupby(["run", "view"], sort=False):
         lines += [f"`{run}` vs `{run}-{view}` ({int(g.episodes.iloc[0])} episodes)", "",
                   f"| modality | KL good (nats) | KL {view} | change | share good | share {view} | change (points) |",
