@@ -59,7 +59,7 @@ def test_report_shows_the_paired_table_and_writes_views_csv(tmp_path):
 
 
 def test_training_kl_traces_are_read_beside_the_checkpoint(tmp_path):
-    from nostra.workflows.views import training_kl, traces_figure
+    from nostra.workflows.views import training_changes, training_kl, traces_figure
 
     analyses = []
     for name, arm, kl in (("s0", GOOD, [3.0, 2.0]), ("s0-blind", OCCLUDED, [1.0, 0.5])):
@@ -73,6 +73,9 @@ def test_training_kl_traces_are_read_beside_the_checkpoint(tmp_path):
     assert traces_figure(analyses, tmp_path / "t.png") and (tmp_path / "t.png").stat().st_size > 1000
     assert not traces_figure([{**a, "checkpoint": str(tmp_path / "gone/policy.ckpt")} for a in analyses],
                              tmp_path / "none.png")
+    # the training log's reading: the mean over each run's last steps (here the last 10: one logged step)
+    batches = training_changes(analyses, last=10).set_index("modality").loc["agentview_image"]
+    assert (batches.kl_good, batches.kl_view, batches.kl_change_pct) == (2.0, 0.5, -75.0)
 
 
 def test_the_report_names_the_demos_the_analyses_replayed():

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 VIEWS = ("occluded", "blind")  # run-name suffixes of the arms compared with the good view
+COLORS = {"good": "C0", "occluded": "C1", "blind": "C2"}  # the same view in the same colour in every figure
 
 
 def view_pairs(analyses: list[dict]) -> list[tuple[str, dict, str, dict]]:
@@ -103,7 +104,7 @@ def figure(changes: pd.DataFrame, path) -> None:
         for k, view in enumerate(views):
             v = g[g.view == view].set_index("modality").loc[modalities]
             x = np.arange(len(modalities)) + (k - (len(views) - 1) / 2) * width
-            ax.bar(x, v.kl_change_pct, width, label=view,
+            ax.bar(x, v.kl_change_pct, width, label=view, color=COLORS.get(view),
                    yerr=[v.kl_change_pct - v.kl_change_pct_low, v.kl_change_pct_high - v.kl_change_pct], capsize=3)
         if "agentview_image" in modalities:
             i = modalities.index("agentview_image")
@@ -131,6 +132,22 @@ def training_kl(checkpoint: str, modality: str) -> pd.Series:
     return pd.Series(kl, dtype=float).sort_index()
 
 
+def training_changes(analyses: list[dict], last: int = 250) -> pd.DataFrame:
+    """Per paired run, other view and modality: the KL on the training batches, averaged over each
+    run's last ``last`` steps (what a training log shows), and the other view's change in %; no
+    interval (consecutive batches are not independent samples). Empty without the runs' metrics."""
+    rows = []
+    for run, good, view, other in view_pairs(analyses):
+        for m in good.get("kl_nats_episodes", {}):
+            g, o = training_kl(good["checkpoint"], m), training_kl(other["checkpoint"], m)
+            if not len(g) or not len(o):
+                continue
+            g, o = g[g.index > g.index.max() - last].mean(), o[o.index > o.index.max() - last].mean()
+            rows.append({"run": run, "view": view, "modality": m, "kl_good": g, "kl_view": o,
+                         "kl_change_pct": 100 * (o / g - 1)})
+    return pd.DataFrame(rows)
+
+
 def traces_figure(analyses: list[dict], path, modality: str = "agentview_image", smooth: int = 10) -> bool:
     """The agent view's KL over training, one panel per paired run, one line per view (running mean
     over ``smooth`` logged steps); False (nothing written) when no paired run's metrics are found."""
@@ -150,7 +167,7 @@ def traces_figure(analyses: list[dict], path, modality: str = "agentview_image",
     fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.4), sharey=True, squeeze=False)
     for ax, (run, lines) in zip(axes[0], panels.items()):
         for name, kl in lines.items():
-            ax.plot(kl.index, kl.values, label=name)
+            ax.plot(kl.index, kl.values, label=name, color=COLORS.get(name))
         ax.set_title(run, fontsize=9), ax.set_xlabel("training step")
     axes[0][0].set_ylabel(f"{modality} KL per step (nats)")
     axes[0][0].legend(fontsize=7)
@@ -160,7 +177,7 @@ def traces_figure(analyses: list[dict], path, modality: str = "agentview_image",
     return True
 
 
-def markdown(changes: pd.DataFrame, traces: bool = False) -> list[str]:
+def markdown(changes: pd.DataFrame, traces: bool = False, batches: pd.DataFrame | None = None) -> list[str]:
     """The paired comparison as Markdown lines (none when there is nothing to compare)."""
     if not len(changes):
         return []
@@ -171,9 +188,6 @@ def markdown(changes: pd.DataFrame, traces: bool = False) -> list[str]:
              "change in % of the good arm's, and each modality's share of the total KL; 95% "
              "percentile-bootstrap intervals over those episodes, resampled together. The paper: the occluded "
              "view's KL falls (by up to 32%) while the other modalities' rise.", "", "![views](views.png)", ""]
-    if traces:
-        lines += ["The agent view's KL over training (each arm on its own training batches):", "",
-                  "![views_training](views_training.png)", ""]
     for (run, view), g in changes.groupby(["run", "view"], sort=False):
         lines += [f"`{run}` vs `{run}-{view}` ({int(g.episodes.iloc[0])} episodes)", "",
                   f"| modality | KL good (nats) | KL {view} | change | share good | share {view} | change (points) |",
@@ -183,4 +197,14 @@ def markdown(changes: pd.DataFrame, traces: bool = False) -> list[str]:
                   f"{100 * r.share_view:.1f}% | {r.share_change_pts:+.1f} [{r.share_change_pts_low:+.1f}, "
                   f"{r.share_change_pts_high:+.1f}] |" for r in g.itertuples()]
         lines.append("")
+    if batches is not None and len(batches):
+        lines += ["The same runs' KL on their own training batches, mean over the last 250 steps (what a training "
+                  "log shows; each arm on its own view's demos; no interval):", "",
+                  "| run | view | modality | KL good | KL view | change |", "|---|---|---|---|---|---|"]
+        lines += [f"| {r.run} | {r.view} | {r.modality} | {r.kl_good:.2f} | {r.kl_view:.2f} | {r.kl_change_pct:+.0f}% |"
+                  for r in batches.itertuples()]
+        lines.append("")
+    if traces:
+        lines += ["The agent view's KL over training (each arm on its own training batches):", "",
+                  "![views_training](views_training.png)", ""]
     return lines
