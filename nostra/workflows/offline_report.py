@@ -7,8 +7,8 @@ per noise, and its false imagination on the clean demos; each analysis's one-epi
     python -m nostra.workflows.offline_report --analyses data/runs/cpu/offline/liftd1 --out reports/cpu/liftd1/offline
 
 Each analysis folder's name below --analyses says what it is (e.g. s0/mask); the report lists them.
-A run's folder named `<run>-occluded` or `<run>-blind` is compared with `<run>`, paired over the held-out demos
-(nostra.workflows.views: Table 3)."""
+A run's folder named `<run>-occluded` or `<run>-blind` is compared with `<run>`, paired over the
+demos both analysed (nostra.workflows.views: Table 3)."""
 
 from __future__ import annotations
 
