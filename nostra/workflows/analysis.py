@@ -131,7 +131,8 @@ def analyse(spec: OfflineSpec) -> dict:
         result["detect"]["all"] = detection_scores(np.concatenate([flags[m] for m in names]),
                                                    np.concatenate([truth[m] for m in names]))
     (out / "offline.md").write_text(markdown(result, spec))
-    (out / "offline.json").write_text(json.dumps({"noise": spec.noise, "checkpoint": spec.checkpoint, "split": spec.split,
+    (out / "offline.json").write_text(json.dumps({"noise": spec.noise, "checkpoint": spec.checkpoint,
+                                                  "split": spec.split,
                                                   "episodes": [list(e) for e in spec.episodes],
                                                   "adamli": dataclasses.asdict(AdaMLIConfig.from_dict(spec.adamli)), **result}, indent=1))
     return result
