@@ -143,6 +143,9 @@ def test_sample_variation_ranges_and_errors():
     assert max(map(abs, a.camera_pos_offset)) <= 0.02 and a.table_texture in ("wood-tiles", "gray-felt")
     assert a.object_rgba == (1.0, 0.0, 0.0, 1.0) and 0.9 <= a.object_scale <= 1.1
     assert sample_variation({}, np.random.default_rng(0)) == Variation()
+    assert sample_variation({"blind": 1.0}, np.random.default_rng(0)) == Variation(blind_agentview=True)
+    with pytest.raises(ValueError, match="set one"):  # both views drawn for one episode
+        sample_variation({"blind": 1.0, "occluded": 1.0}, np.random.default_rng(0))
     assert Variation.from_dict(json.loads(json.dumps(a.to_dict()))) == a
     with pytest.raises(ValueError, match="valid keys"):
         sample_variation({"camera_shake": 1}, np.random.default_rng(0))
