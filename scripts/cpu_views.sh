@@ -93,7 +93,10 @@ for beta in $BETAS; do
 done
 for split in $SPLITS; do
   out=reports/cpu/$TASK/views; [ $split = held_out ] || out=$out-$split
+  # the report holds every call's runs under that folder: name all their training seeds
+  seeds=$(ls "$(root $split)" | sed -n 's/^.*-s\([0-9][0-9]*\)\(-[a-z]*\)\{0,1\}$/\1/p' | sort -un | tr '\n' ' ')
   python -m nostra.workflows.offline_report --analyses "$(root $split)" --out "$out" --command "TASK=$TASK SEED=$SEED \
-BETAS=\"$BETAS\" STEPS=$STEPS VIEWS=\"$VIEWS\" SPLITS=\"$SPLITS\" bash scripts/cpu_views.sh ($(( ($(date +%s) - start) / 60 )) min in this call)"
+BETAS=\"$BETAS\" STEPS=$STEPS VIEWS=\"$VIEWS\" SPLITS=\"$SPLITS\" bash scripts/cpu_views.sh ($(( ($(date +%s) - start) / 60 )) min \
+in this call; the report holds the runs of training SEEDS=\"${seeds% }\")"
   log "done: $out/offline.md"
 done
