@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from nostra.modality import FRONT_IMAGE
+
 VIEWS = ("occluded", "blind")  # run-name suffixes of the arms compared with the good view
 COLORS = {"good": "C0", "occluded": "C1", "blind": "C2"}  # the same view in the same colour in every figure
 
@@ -106,8 +108,8 @@ def figure(changes: pd.DataFrame, path) -> None:
             x = np.arange(len(modalities)) + (k - (len(views) - 1) / 2) * width
             ax.bar(x, v.kl_change_pct, width, label=view, color=COLORS.get(view),
                    yerr=[v.kl_change_pct - v.kl_change_pct_low, v.kl_change_pct_high - v.kl_change_pct], capsize=3)
-        if "agentview_image" in modalities:
-            i = modalities.index("agentview_image")
+        if FRONT_IMAGE in modalities:  # the agent view, the one the paper occludes
+            i = modalities.index(FRONT_IMAGE)
             ax.fill_between([i - 0.45, i + 0.45], -32, -10, color="0.8", zorder=0, label="paper (occluded)")
         ax.axhline(0, color="k", lw=0.8)
         ax.set_xticks(np.arange(len(modalities)), [m.replace("robot0_", "") for m in modalities], rotation=30,
@@ -148,7 +150,7 @@ def training_changes(analyses: list[dict], last: int = 250) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def traces_figure(analyses: list[dict], path, modality: str = "agentview_image", smooth: int = 10) -> bool:
+def traces_figure(analyses: list[dict], path, modality: str = FRONT_IMAGE, smooth: int = 10) -> bool:
     """The agent view's KL over training, one panel per paired run, one line per view (running mean
     over ``smooth`` logged steps); False (nothing written) when no paired run's metrics are found."""
     import matplotlib
