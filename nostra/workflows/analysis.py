@@ -27,6 +27,7 @@ from nostra.noise import NoiseSchedule, check_noise
 
 # noises that act on stored observations (camera jitter and texture swaps need the simulator)
 OFFLINE_NOISES = ("mask", "depth_mask", "proprio_zero", "proprio_stuck", "rgb", "rgbd", "all")
+SPLIT_WORDS = {"held_out": "held-out", "train": "training"}  # how reports name the demos a split replays
 
 
 @dataclass
@@ -162,8 +163,7 @@ def _err(actions: np.ndarray, target: np.ndarray, inside: np.ndarray) -> float:
 
 
 def markdown(result: dict, spec: OfflineSpec) -> str:
-    demos = "held-out" if spec.split == "held_out" else "training"
-    lines = [f"## Offline analysis: noise `{spec.noise}` on {len(spec.episodes)} {demos} demos", "",
+    lines = [f"## Offline analysis: noise `{spec.noise}` on {len(spec.episodes)} {SPLIT_WORDS[spec.split]} demos", "",
              "| variant | action MSE inside the windows |", "|---|---|"]
     lines += [f"| {v} | {e:.4f} |" for v, e in result["action_mse"].items()]
     if result["kl_nats"]:

@@ -243,9 +243,9 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
 
 def demos_word(analyses: list[dict]) -> str:
     """Which of the training runs' demos the analyses replayed (older offline.json: held out)."""
-    splits = sorted({a.get("split", "held_out") for a in analyses})
-    return {"held_out": "held-out", "train": "training"}.get(splits[0], splits[0]) if len(splits) == 1 else \
-        "held-out and training"
+    from nostra.workflows.analysis import SPLIT_WORDS
+
+    return " and ".join(sorted({SPLIT_WORDS.get(a.get("split", "held_out"), a.get("split")) for a in analyses}))
 
 
 def main(argv: list[str] | None = None) -> None:
