@@ -11,6 +11,7 @@
 #   ROLLOUT_NOISES="none mask" EPISODES=50 F_O="5 20 80" F_C=3 bash scripts/cpu_adamli_sweep.sh
 # OBS=rgbd sweeps the Table 2 policy (make cpu-claims OBS=rgbd), e.g. f_c under zeroed proprioception:
 #   OBS=rgbd NOISE=proprio_zero ROLLOUT_NOISES="none proprio_zero" F_O=20 F_C="3 6 12" bash scripts/cpu_adamli_sweep.sh
+# OUT=<folder> writes the report there instead of $REPORTS/<task>/adamli_sweep (e.g. one per training seed).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -48,6 +49,7 @@ for fo in $F_O; do
     done
   done
 done
-python -m nostra.workflows.offline_report --analyses "$ROOT" --out "$REPORTS/$TASK/adamli_sweep" --no-figures \
+OUT=${OUT:-$REPORTS/$TASK/adamli_sweep}
+python -m nostra.workflows.offline_report --analyses "$ROOT" --out "$OUT" --no-figures \
   --rollouts "$ROLLOUTS" \
-  --command "OBS=$OBS TASK=$TASK SEED=$SEED F_O=\"$F_O\" F_C=\"$F_C\" NOISE=$NOISE ROLLOUT_NOISES=\"$ROLLOUT_NOISES\" EPISODES=$EPISODES bash scripts/cpu_adamli_sweep.sh"
+  --command "OBS=$OBS TASK=$TASK SEED=$SEED F_O=\"$F_O\" F_C=\"$F_C\" NOISE=$NOISE ROLLOUT_NOISES=\"$ROLLOUT_NOISES\" EPISODES=$EPISODES OUT=$OUT bash scripts/cpu_adamli_sweep.sh"

@@ -14,6 +14,9 @@
 #   OBS=rgbd SEEDS=0 MODELS="lstm nostra" make cpu-claims     # reports/cpu-rgbd/<task>/claims/
 # Capacity-matched (BC-LSTM and BC-RSSM at NOSTRA's parameter count; reports/cpu-matched/<task>/claims/):
 #   CAPACITY=matched SEEDS=0 MODELS="lstm rssm nostra" NOISES="none mask blind" make cpu-claims
+# OUT=<folder> writes the report there instead (a seed whose sibling seeds' records are not on this disk,
+# so that it does not replace their report):
+#   OBS=rgbd SEEDS=1 MODELS=nostra CHECKPOINTS=best OUT=reports/cpu-rgbd/liftd1/claims-s1 make cpu-claims
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -23,7 +26,7 @@ MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
 HORIZON=${HORIZON:-}
 source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
-OUT=$REPORTS/$TASK/claims
+OUT=${OUT:-$REPORTS/$TASK/claims}
 case $OBS in
   rgb) NOISES=${NOISES:-none mask cam_jitter table_tex clean_windows blind} ;;
   rgbd) NOISES=${NOISES:-none rgb rgbd all blind} ;;
@@ -99,6 +102,6 @@ if [ "$CAPACITY" = matched ]; then  # the widths the runs were trained with, in 
   note=(--note "Capacity-matched: BC-LSTM and BC-RSSM at BC-NOSTRA's parameter count (${widths% }); BC-NOSTRA as configured")
 fi
 python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" "${note[@]}" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY make cpu-claims" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/claims.md"
