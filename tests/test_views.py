@@ -5,7 +5,7 @@ import json
 import pytest
 
 from nostra.workflows.offline_report import main
-from nostra.workflows.views import view_changes
+from nostra.workflows.views import markdown, pooled_changes, view_changes
 
 
 def _arm(episodes, agent, pos, steps):
@@ -36,6 +36,23 @@ def test_occluded_and_blind_arms_are_each_paired_with_the_good_arm():
     assert sorted(set(zip(changes.run, changes.view))) == [("s0", "blind"), ("s0", "occluded")]
 
 
+def test_seeds_are_pooled_alike_and_their_spread_widens_the_interval():
+    # seed 0: the agent view's KL falls 53% (GOOD vs OCCLUDED); seed 1: it doubles (+100%)
+    doubled = _arm([0, 1, 2, 3], [8.0, 10.0, 6.0, 8.0], [1.0] * 4, [10, 10, 20, 10])
+    arms = [{"name": "b1e-4-s0/mask", **GOOD}, {"name": "b1e-4-s0-occluded/mask", **OCCLUDED},
+            {"name": "b1e-4-s1/mask", **GOOD}, {"name": "b1e-4-s1-occluded/mask", **doubled},
+            {"name": "b1e-2-s0/mask", **GOOD}, {"name": "b1e-2-s0-occluded/mask", **OCCLUDED}]  # one seed: not pooled
+    pooled = pooled_changes(arms, n_resamples=2000)
+    assert set(pooled.run) == {"b1e-4"} and set(pooled.seeds) == {"0 1"}
+    agent = pooled.set_index("modality").loc["agentview_image"]
+    assert agent.kl_change_pct == pytest.approx((100 * (90 / 190 - 1) + 100) / 2)
+    assert agent.kl_change_pct_per_seed == "-53 +100"
+    # resampling the seeds reaches both seeds' values: the interval spans the disagreement
+    assert agent.kl_change_pct_low < -40 and agent.kl_change_pct_high > 90
+    text = "\n".join(markdown(view_changes(arms), pooled=pooled))
+    assert f"| b1e-4-s* | occluded | 0 1 | agentview_image | -53 +100% | {agent.kl_change_pct:+.0f}% [" in text
+
+
 def test_a_run_without_its_other_arm_or_per_episode_kl_is_not_compared():
     assert not len(view_changes([{"name": "s0-occluded/mask", **OCCLUDED}]))
     old = {k: v for k, v in GOOD.items() if k != "kl_nats_episodes"}  # an analysis from before it was stored
@@ -56,6 +73,7 @@ def test_report_shows_the_paired_table_and_writes_views_csv(tmp_path):
     assert "| agentview_image | 3.80 | 1.80 | -53% [" in text and "| 79.2% | 47.4% | -31.8 [" in text
     assert (tmp_path / "out/views.csv").read_text().startswith("run,view,episodes,modality,")
     assert (tmp_path / "out/views.png").read_bytes().startswith(b"\x89PNG") and "![views](views.png)" in text
+    assert not (tmp_path / "out/views_pooled.csv").exists() and "Pooled over training seeds" not in text  # one seed
 
 
 def test_training_kl_traces_are_read_beside_the_checkpoint(tmp_path):

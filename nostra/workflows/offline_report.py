@@ -22,7 +22,7 @@ import pandas as pd
 from nostra.workflows.views import figure as views_figure
 from nostra.workflows.views import markdown as views_markdown
 from nostra.workflows.views import traces_figure, training_changes
-from nostra.workflows.views import view_changes
+from nostra.workflows.views import pooled_changes, view_changes
 
 
 def load(root: Path) -> list[dict]:
@@ -178,7 +178,7 @@ def _score(x) -> str:
 def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict[str, str] | None = None,
              sweep: pd.DataFrame | None = None, pairs: pd.DataFrame | None = None,
              changes: pd.DataFrame | None = None, traces: bool = False, demos: str = "held-out",
-             batches: pd.DataFrame | None = None) -> str:
+             batches: pd.DataFrame | None = None, pooled: pd.DataFrame | None = None) -> str:
     lines = [f"# Where the nats go, and what AdaMLI detects (offline, {demos} demos)", "", f"`{command}`", "",
              f"## Per-modality KL on the clean {demos} demos (Table 3)", "",
              f"Mean KL per step in nats, 95% t-interval over the {demos} episodes, share of the total.", ""]
@@ -196,7 +196,7 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
         lines += [f"| {m} | " + " | ".join(f"{100 * v:.0f}%" for v in row) + " |" for m, row in shares.iterrows()]
         lines.append("")
     if changes is not None:
-        lines += views_markdown(changes, traces, batches)
+        lines += views_markdown(changes, traces, batches, pooled)
     lines += ["## AdaMLI detection per noise", "",
               "Per-step precision and recall of AdaMLI's imagination flags against the injected windows; false "
               "imagination: share of the clean demos' steps on which AdaMLI imagines the modality.", ""]
@@ -265,12 +265,15 @@ def main(argv: list[str] | None = None) -> None:
     command = args.command or f"python -m nostra.workflows.offline_report --analyses {args.analyses} --out {args.out}"
     figures, sweep = ({} if args.no_figures else copy_figures(analyses, args.out)), sweep_table(analyses)
     changes, traces, batches = view_changes(analyses), False, training_changes(analyses)
+    pooled = pooled_changes(analyses)
     if len(changes):
         changes.to_csv(args.out / "views.csv", index=False)
         views_figure(changes, args.out / "views.png")
         traces = traces_figure(analyses, args.out / "views_training.png")
     if len(batches):
         batches.to_csv(args.out / "views_training.csv", index=False)
+    if len(pooled):
+        pooled.to_csv(args.out / "views_pooled.csv", index=False)
     pairs = pd.DataFrame()
     if args.rollouts is not None:
         pairs = paired_thresholds(sweep, args.rollouts)
@@ -281,7 +284,7 @@ def main(argv: list[str] | None = None) -> None:
     if len(pairs):
         pairs.to_csv(args.out / "adamli_paired.csv", index=False)
     (args.out / "offline.md").write_text(markdown(kl, detect, command, figures, sweep, pairs, changes, traces,
-                                                     demos_word(analyses), batches))
+                                                     demos_word(analyses), batches, pooled))
     print(args.out / "offline.md")
 
 

@@ -11,6 +11,7 @@ paired with the one named ``<run>``; offline.json must carry the per-episode KL 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -66,25 +67,72 @@ def _with_interval(stat, n: int, seed: int) -> tuple[float, float, float]:
     return float(stat(idx)), float(ci.low), float(ci.high)
 
 
-def view_changes(analyses: list[dict], seed: int = 0) -> pd.DataFrame:
-    """Per paired run, other view and modality: mean KL per step on each view, the other view's change
-    in % of the good view's, each view's share of the total KL and the change in points, with 95%
-    intervals over the common analysed episodes. Empty when no run has both arms with per-episode KL."""
-    rows = []
+def paired_arms(analyses: list[dict]):
+    """(good run's name, other view, modalities, good arm's and other arm's per-episode nats from
+    ``_nats``) over the episodes both analysed, for every pair with per-episode KL on >= 2 of them."""
     for run, good, view, occl in view_pairs(analyses):
         if "kl_nats_episodes" not in good or "kl_nats_episodes" not in occl:
             continue
         common = sorted({int(e[1]) for e in good["episodes"]} & {int(e[1]) for e in occl["episodes"]})
         modalities = [m for m in good["kl_nats_episodes"] if m in occl["kl_nats_episodes"]]
-        if len(common) < 2 or not modalities:
-            continue
-        g, o, every = _nats(good, modalities, common), _nats(occl, modalities, common), np.arange(len(common))
+        if len(common) >= 2 and modalities:
+            yield run, view, modalities, _nats(good, modalities, common), _nats(occl, modalities, common)
+
+
+def _kl_change(g: np.ndarray, o: np.ndarray, j: int):
+    return lambda i: 100 * (_kl(o, j, i) / _kl(g, j, i) - 1)
+
+
+def _share_change(g: np.ndarray, o: np.ndarray, j: int):
+    return lambda i: 100 * (_share(o, j, i) - _share(g, j, i))
+
+
+CHANGES = (("kl_change_pct", _kl_change, "{:+.0f}"), ("share_change_pts", _share_change, "{:+.1f}"))  # name, stat, format
+
+
+def view_changes(analyses: list[dict], seed: int = 0) -> pd.DataFrame:
+    """Per paired run, other view and modality: mean KL per step on each view, the other view's change
+    in % of the good view's, each view's share of the total KL and the change in points, with 95%
+    intervals over the common analysed episodes. Empty when no run has both arms with per-episode KL."""
+    rows = []
+    for run, view, modalities, g, o in paired_arms(analyses):
+        n = g.shape[1]
+        every = np.arange(n)
         for j, m in enumerate(modalities):
-            row = {"run": run, "view": view, "episodes": len(common), "modality": m, "kl_good": _kl(g, j, every),
+            row = {"run": run, "view": view, "episodes": n, "modality": m, "kl_good": _kl(g, j, every),
                    "kl_view": _kl(o, j, every), "share_good": _share(g, j, every), "share_view": _share(o, j, every)}
-            for name, stat in (("kl_change_pct", lambda i: 100 * (_kl(o, j, i) / _kl(g, j, i) - 1)),
-                               ("share_change_pts", lambda i: 100 * (_share(o, j, i) - _share(g, j, i)))):
-                row[name], row[f"{name}_low"], row[f"{name}_high"] = _with_interval(stat, len(common), seed)
+            for name, change, _ in CHANGES:
+                row[name], row[f"{name}_low"], row[f"{name}_high"] = _with_interval(change(g, o, j), n, seed)
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def pooled_changes(analyses: list[dict], seed: int = 0, n_resamples: int = 10_000) -> pd.DataFrame:
+    """The changes of ``view_changes`` pooled over training seeds: runs named ``<prefix>-s<seed>`` with
+    the same prefix and view, each seed weighted alike (the mean of the per-seed changes), with a
+    two-stage bootstrap interval (seeds resampled, then episodes within each), so the spread between
+    training seeds widens it. Hand-written: scipy's bootstrap resamples one level only. Empty when
+    no prefix and view has two seeds."""
+    groups: dict[tuple[str, str], list] = {}
+    for run, view, modalities, g, o in paired_arms(analyses):
+        if m := re.fullmatch(r"(.+)-s(\d+)", run):
+            groups.setdefault((m[1], view), []).append((m[2], modalities, g, o))
+    rng, rows = np.random.default_rng(seed), []
+    for (prefix, view), arms in groups.items():
+        if len(arms) < 2:
+            continue
+        k = len(arms)
+        draw = rng.integers(k, size=(n_resamples, k))  # stage 1: which seed fills each slot
+        resamples = [rng.integers(g.shape[1], size=(n_resamples, k, g.shape[1])) for _, _, g, _ in arms]
+        for m in [m for m in arms[0][1] if all(m in a[1] for a in arms)]:
+            row = {"run": prefix, "view": view, "seeds": " ".join(a[0] for a in arms), "modality": m}
+            for name, change, fmt in CHANGES:
+                stats = [change(g, o, mods.index(m)) for _, mods, g, o in arms]
+                point = [float(stat(np.arange(g.shape[1]))) for stat, (_, _, g, _) in zip(stats, arms)]
+                boot = np.stack([stat(idx) for stat, idx in zip(stats, resamples)])  # (arm, resample, slot)
+                pooled = boot[draw, np.arange(n_resamples)[:, None], np.arange(k)].mean(1)
+                row[name], row[f"{name}_per_seed"] = float(np.mean(point)), " ".join(fmt.format(p) for p in point)
+                row[f"{name}_low"], row[f"{name}_high"] = np.percentile(pooled, [2.5, 97.5]).tolist()
             rows.append(row)
     return pd.DataFrame(rows)
 
@@ -179,7 +227,8 @@ def traces_figure(analyses: list[dict], path, modality: str = FRONT_IMAGE, smoot
     return True
 
 
-def markdown(changes: pd.DataFrame, traces: bool = False, batches: pd.DataFrame | None = None) -> list[str]:
+def markdown(changes: pd.DataFrame, traces: bool = False, batches: pd.DataFrame | None = None,
+             pooled: pd.DataFrame | None = None) -> list[str]:
     """The paired comparison as Markdown lines (none when there is nothing to compare)."""
     if not len(changes):
         return []
@@ -198,6 +247,16 @@ def markdown(changes: pd.DataFrame, traces: bool = False, batches: pd.DataFrame 
                   f"[{r.kl_change_pct_low:+.0f}, {r.kl_change_pct_high:+.0f}] | {100 * r.share_good:.1f}% | "
                   f"{100 * r.share_view:.1f}% | {r.share_change_pts:+.1f} [{r.share_change_pts_low:+.1f}, "
                   f"{r.share_change_pts_high:+.1f}] |" for r in g.itertuples()]
+        lines.append("")
+    if pooled is not None and len(pooled):
+        lines += ["Pooled over training seeds: the mean of the per-seed changes (each seed alike), 95% two-stage "
+                  "bootstrap interval (training seeds resampled, then episodes within each):", "",
+                  "| runs | view | seeds | modality | KL change per seed | pooled | share change per seed (points) "
+                  "| pooled |", "|---|---|---|---|---|---|---|---|"]
+        lines += [f"| {r.run}-s* | {r.view} | {r.seeds} | {r.modality} | {r.kl_change_pct_per_seed}% | "
+                  f"{r.kl_change_pct:+.0f}% [{r.kl_change_pct_low:+.0f}, {r.kl_change_pct_high:+.0f}] | "
+                  f"{r.share_change_pts_per_seed} | {r.share_change_pts:+.1f} [{r.share_change_pts_low:+.1f}, "
+                  f"{r.share_change_pts_high:+.1f}] |" for r in pooled.itertuples()]
         lines.append("")
     if batches is not None and len(batches):
         lines += ["The same runs' KL on their own training batches, mean over the last 250 steps (what a training "
