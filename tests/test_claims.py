@@ -87,6 +87,26 @@ def test_cells_not_run_yet_are_not_measured_not_failed(tmp_path):
     assert lines.count("| not measured |") == 4 and "shown" not in lines
 
 
+def test_a_nostra_only_run_is_tested_on_the_bars_of_the_models_it_ran(tmp_path):
+    """A training seed with BC-NOSTRA alone (no BC-LSTM records): the clean and blind bars read NOSTRA's
+    cells, and a failing NOSTRA still fails them."""
+    _write(tmp_path, 1, "best", "none", "nostra", [True] * 10)
+    _write(tmp_path, 1, "best", "blind", "nostra_mli", [False] * 10)
+    for variant, ok in (("nostra", [False] * 10), ("nostra_adamli", [True] * 10)):
+        _write(tmp_path, 1, "best", "rgb", variant, ok)
+    df = load_records(tmp_path)
+    lines = "\n".join(verdicts(success_table(df), paired_table(df), "best"))
+    assert "| closed-loop clean >= 85% (BC-LSTM –, BC-NOSTRA 100%) | yes |" in lines
+    assert "| blind control <= 20% (BC-LSTM –, MLI 0%) | yes |" in lines
+    assert "| BC-NOSTRA + AdaMLI under rgb within 10% of its clean success (100% vs 100%) | shown |" in lines
+    assert "| BC-NOSTRA + AdaMLI above BC-LSTM under rgb with McNemar p < 0.05 (–) | not measured |" in lines
+    _write(tmp_path, 1, "best", "blind", "nostra_mli", [True] * 10)  # imagining blind succeeds: vision not needed
+    df = load_records(tmp_path)
+    lines = "\n".join(verdicts(success_table(df), paired_table(df), "best"))
+    assert "| blind control <= 20% (BC-LSTM –, MLI 100%) | no |" in lines
+    assert "under rgb within 10% of its clean success (100% vs 100%) | not testable (shown as measured) |" in lines
+
+
 def test_table2_noises_get_their_columns_pairs_and_claims(tmp_path):
     """OBS=rgbd's cells (rgb, rgbd, all): AdaMLI against the others, paired, and its claims gated by
     whether each noise hurts the closed-loop policy; Table 1's mask claims are left out (not run)."""
