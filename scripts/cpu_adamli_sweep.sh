@@ -12,6 +12,8 @@
 # OBS=rgbd sweeps the Table 2 policy (make cpu-claims OBS=rgbd), e.g. f_c under zeroed proprioception:
 #   OBS=rgbd NOISE=proprio_zero ROLLOUT_NOISES="none proprio_zero" F_O=20 F_C="3 6 12" bash scripts/cpu_adamli_sweep.sh
 # OUT=<folder> writes the report there instead of $REPORTS/<task>/adamli_sweep (e.g. one per training seed).
+# Where make cpu-claims has evaluated the same best checkpoint, each setting's rollouts are also paired with
+# its cells (the paper's AdaMLI, the oracle MLI under the same noise, the clean closed loop): adamli_paired.csv.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -50,6 +52,8 @@ for fo in $F_O; do
   done
 done
 OUT=${OUT:-$REPORTS/$TASK/adamli_sweep}
+CLAIMS=$RUNS/evaluate/$TASK/s$SEED/best
+reference=(); [ -d "$CLAIMS" ] && reference=(--reference "$CLAIMS")
 python -m nostra.workflows.offline_report --analyses "$ROOT" --out "$OUT" --no-figures \
-  --rollouts "$ROLLOUTS" \
+  --rollouts "$ROLLOUTS" "${reference[@]}" \
   --command "OBS=$OBS TASK=$TASK SEED=$SEED F_O=\"$F_O\" F_C=\"$F_C\" NOISE=$NOISE ROLLOUT_NOISES=\"$ROLLOUT_NOISES\" EPISODES=$EPISODES OUT=$OUT bash scripts/cpu_adamli_sweep.sh"

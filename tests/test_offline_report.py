@@ -79,6 +79,45 @@ def test_threshold_sweep_adds_closed_loop_success_per_setting(tmp_path):
     csv = (tmp_path / "out/adamli_sweep.csv").read_text().splitlines()[0]
     assert "success_none,success_none_low,success_none_high" in csv
     # f_o = 5 against the paper's 20 on the same four initial states: one more success clean, none masked
-    assert "| 5 | none | 4 | +25 [+0, +75] | 1 / 0 | 1 |" in text and "| 5 | mask | 4 | +0 [+0, +0] | 0 / 0 | 1 |" in text
+    assert "| seed | f_o | rollout noise | minus | n |" in text
+    assert "| 0 | 5 | none | paper's thresholds | 4 | +25 [+0, +75] | 1 / 0 | 1 |" in text
+    assert "| 0 | 5 | mask | paper's thresholds | 4 | +0 [+0, +0] | 0 / 0 | 1 |" in text
     pairs = pd.read_csv(tmp_path / "out/adamli_paired.csv")
     assert list(pairs.f_o) == [5, 5] and set(pairs.noise) == {"none", "mask"}
+
+
+def _records(folder, variant, wins, n=4):
+    import numpy as np
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for k in range(n):
+        np.savez(folder / f"{variant}_seed{1000 + k}.npz", success=k < wins)
+
+
+def test_a_sweep_without_the_papers_setting_is_paired_with_make_cpu_claims_cells(tmp_path):
+    """f_c = 6 alone in the sweep: its cell under `all` is paired with the claims' AdaMLI (the paper's
+    f_c = 3), oracle MLI and clean closed-loop cells of the same checkpoint, on the same episode seeds."""
+    for f_c in (3.0, 6.0):  # the offline analyses vary f_c; the rollouts ran f_c = 6 only
+        _analysis(tmp_path / "runs", f"s1-fo20-fc{f_c:g}/all", "all", "a.ckpt", {"cam": 1.0},
+                  adamli={"f_o": 20.0, "f_c": f_c})
+    _records(tmp_path / "rollouts/s1-fo20-fc6/all/records/LiftD1/all", "nostra_adamli", wins=4)
+    # another training seed's setting: nothing of its own seed to be paired with (not seed 1's cells)
+    _analysis(tmp_path / "runs", "s0-fo20-fc6/all", "all", "b.ckpt", {"cam": 1.0}, adamli={"f_o": 20.0, "f_c": 6.0})
+    _records(tmp_path / "rollouts/s0-fo20-fc6/all/records/LiftD1/all", "nostra_adamli", wins=2)
+    claims = tmp_path / "evaluate/liftd1/s1/best"
+    _records(claims / "all/nostra+nostra_mli+nostra_adamli/records/LiftD1/all", "nostra_adamli", wins=1)
+    _records(claims / "all/nostra+nostra_mli+nostra_adamli/records/LiftD1/all", "nostra_mli", wins=3)
+    _records(claims / "all/nostra+nostra_mli+nostra_adamli/records/LiftD1/all", "nostra", wins=0)
+    _records(claims / "none/records/LiftD1/none", "nostra", wins=4)
+    _records(claims / "none/records/LiftD1/none", "lstm", wins=2)  # not a cell AdaMLI is compared with
+    main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--no-figures",
+          "--rollouts", str(tmp_path / "rollouts"), "--reference", str(claims)])
+    pairs = pd.read_csv(tmp_path / "out/adamli_paired.csv")
+    assert set(pairs.seed) == {1} and list(pairs.against) == ["paper's thresholds", "oracle MLI", "clean, closed loop"]
+    assert list(pairs["diff"]) == [0.75, 0.25, 0.0] and list(pairs.a_only) == [3, 1, 0]
+    text = (tmp_path / "out/offline.md").read_text()
+    assert "| 1 | 6 | all | paper's thresholds | 4 | +75 [+25, +100] | 3 / 0 | 0.25 |" in text
+    with pytest.raises(FileNotFoundError, match="--reference .*nowhere: no such folder"):
+        main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out2"), "--no-figures",
+              "--rollouts", str(tmp_path / "rollouts"), "--reference", str(tmp_path / "nowhere")])
+    assert not (tmp_path / "out2").exists()  # checked before anything is written

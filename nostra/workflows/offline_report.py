@@ -101,10 +101,27 @@ def with_success(sweep: pd.DataFrame, rollouts: pd.DataFrame) -> pd.DataFrame:
     return out.drop(columns="setting")
 
 
-def paired_thresholds(sweep: pd.DataFrame, root: Path) -> pd.DataFrame:
-    """Each threshold setting's closed-loop success against the paper's setting (AdaMLIConfig's
-    defaults), per rollout noise, paired over the initial states both met: difference, 95% CI,
-    McNemar exact p (claims.paired)."""
+# the cells of `make cpu-claims` (same checkpoint, same initial states) a threshold setting is paired with
+REFERENCES = {"nostra_adamli": "paper's thresholds", "nostra_mli": "oracle MLI", "nostra": "clean, closed loop"}
+
+
+def reference_cells(reference: Path) -> dict[tuple[str, str], pd.Series]:
+    """(noise, variant) -> success by episode seed from the records under ``reference`` (make cpu-claims'
+    <evaluate>/<task>/s<seed>/<checkpoint>/); a cell evaluated twice: the later folder wins."""
+    from nostra.workflows.sweep_report import episodes
+
+    ep = episodes(reference).drop_duplicates(["noise", "variant", "episode"], keep="last")
+    ep = ep[ep.variant.isin(list(REFERENCES))]
+    return {k: g.set_index("episode")["success"] for k, g in ep.groupby(["noise", "variant"])}
+
+
+def paired_thresholds(sweep: pd.DataFrame, root: Path, reference: Path | None = None) -> pd.DataFrame:
+    """Each threshold setting's closed-loop success per rollout noise against the paper's setting
+    (AdaMLIConfig's defaults: the sweep's own cell, else the reference's nostra_adamli), and, with
+    ``reference`` (make cpu-claims' records of the same checkpoint), against the oracle MLI under the
+    same noise and the closed-loop policy with no noise; paired over the initial states both met:
+    difference, 95% CI, McNemar exact p (claims.paired). Column ``against`` names the other cell; a
+    setting s<k>-... is paired only with cells of training seed k."""
     from nostra.policies.imagination import AdaMLIConfig
     from nostra.workflows.claims import paired
     from nostra.workflows.sweep_report import episodes
@@ -116,13 +133,23 @@ def paired_thresholds(sweep: pd.DataFrame, root: Path) -> pd.DataFrame:
     varied = _varied(sweep)
     params = sweep.assign(setting=sweep.analysis.str.split("/").str[0]).drop_duplicates("setting").set_index("setting")
     paper = {k: getattr(AdaMLIConfig(), k) for k in varied}
-    ref = next((s for s, r in params.iterrows() if all(r[k] == v for k, v in paper.items())), None)
-    if ref is None:
-        return pd.DataFrame()
+    seed = lambda setting: setting.split("-")[0]  # noqa: E731  (s<training seed>-fo..-fc..: one checkpoint per seed)
+    ref = {seed(s): s for s, r in params.iterrows() if all(r[k] == v for k, v in paper.items())}
     cell = {k: g.set_index("episode")["success"] for k, g in ep.groupby(["setting", "noise"])}
-    rows = [{**{k: params.loc[s, k] for k in varied}, "noise": noise, **paired(c, cell[ref, noise])}
-            for (s, noise), c in cell.items() if s != ref and s in params.index and (ref, noise) in cell]
-    return pd.DataFrame(rows).sort_values([*varied, "noise"]).reset_index(drop=True) if rows else pd.DataFrame()
+    # the reference's cells belong to one training seed: its folder <evaluate>/<task>/s<seed>/<checkpoint>
+    claims = (reference.parent.name, reference_cells(reference)) if reference is not None else (None, {})
+    rows = []
+    for (s, noise), c in cell.items():
+        if s not in params.index:
+            continue
+        refs = claims[1] if claims[0] == seed(s) else {}
+        mine = ref.get(seed(s))
+        others = {"nostra_adamli": cell.get((mine, noise), refs.get((noise, "nostra_adamli"))) if s != mine else None,
+                  "nostra_mli": refs.get((noise, "nostra_mli")),
+                  "nostra": refs.get(("none", "nostra")) if noise != "none" else None}
+        rows += [{"seed": int(seed(s)[1:]), **{k: params.loc[s, k] for k in varied}, "noise": noise, "against": REFERENCES[v], **paired(c, b)}
+                 for v, b in others.items() if b is not None]
+    return pd.DataFrame(rows).sort_values(["seed", *varied, "noise"], kind="stable").reset_index(drop=True) if rows else pd.DataFrame()
 
 
 def _varied(sweep: pd.DataFrame) -> list[str]:
@@ -226,13 +253,14 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
     if pairs is not None and len(pairs):
         from nostra.workflows.claims import paired_cells
 
-        varied = list(pairs.columns[:pairs.columns.get_loc("noise")])  # the thresholds paired_thresholds put first
-        lines += ["Closed-loop success of each setting minus the paper's, paired over the initial states both met "
-                  "(`adamli_paired.csv`):", "",
-                  "| " + " | ".join(varied) + " | rollout noise | n | difference (points) [95% CI] | only this / only "
-                  "the paper's | McNemar exact p |", "|---" * (len(varied) + 5) + "|"]
-        lines += ["| " + " | ".join(f"{getattr(r, k):g}" for k in varied) + f" | {r.noise} | {r.n} | {paired_cells(r)} |"
-                  for r in pairs.itertuples()]
+        varied = list(pairs.columns[:pairs.columns.get_loc("noise")])  # seed, the thresholds: paired_thresholds' order
+        lines += ["Closed-loop success of each setting minus another cell's, paired over the initial states both met "
+                  "(`adamli_paired.csv`): the paper's thresholds, and where make cpu-claims' cells of the same checkpoint "
+                  "were given, the oracle MLI under the same noise and the closed-loop policy with no noise:", "",
+                  "| " + " | ".join(varied) + " | rollout noise | minus | n | difference (points) [95% CI] | "
+                  "only this / only the other | McNemar exact p |", "|---" * (len(varied) + 6) + "|"]
+        lines += ["| " + " | ".join(f"{getattr(r, k):g}" for k in varied) + f" | {r.noise} | {r.against} | {r.n} | "
+                  f"{paired_cells(r)} |" for r in pairs.itertuples()]
         lines.append("")
     if figures:
         lines += ["## Per-modality KL over one held-out episode (Figure 5)", "",
@@ -256,7 +284,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--no-figures", action="store_true", help="leave out each analysis's one-episode figure")
     ap.add_argument("--rollouts", type=Path, default=None,
                     help="the threshold sweep's rollouts (<dir>/<setting>/**/records): closed-loop success per setting")
+    ap.add_argument("--reference", type=Path, default=None,
+                    help="make cpu-claims' records of the same checkpoint (<evaluate>/<task>/s<seed>/best): each "
+                         "setting is paired with its oracle MLI, its clean closed loop and its paper's AdaMLI")
     args = ap.parse_args(argv)
+    if args.reference is not None and not args.reference.is_dir():
+        raise FileNotFoundError(f"--reference {args.reference}: no such folder (make cpu-claims writes "
+                                "<runs>/evaluate/<task>/s<seed>/<checkpoint>/)")
     analyses = load(args.analyses)
     kl, detect = kl_table(analyses), detection_table(analyses)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -276,7 +310,7 @@ def main(argv: list[str] | None = None) -> None:
         pooled.to_csv(args.out / "views_pooled.csv", index=False)
     pairs = pd.DataFrame()
     if args.rollouts is not None:
-        pairs = paired_thresholds(sweep, args.rollouts)
+        pairs = paired_thresholds(sweep, args.rollouts, args.reference)
         sweep = with_success(sweep, closed_loop(args.rollouts))
     if len(sweep):
         sweep.to_csv(args.out / "adamli_sweep.csv", index=False)
