@@ -13,7 +13,7 @@
 #   OBS=rgbd NOISE=proprio_zero ROLLOUT_NOISES="none proprio_zero" F_O=20 F_C="3 6 12" bash scripts/cpu_adamli_sweep.sh
 # OUT=<folder> writes the report there instead of $REPORTS/<task>/adamli_sweep (e.g. one per training seed).
 # Where make cpu-claims has evaluated the same best checkpoint, each setting's rollouts are also paired with
-# its cells (the paper's AdaMLI, the oracle MLI under the same noise, the clean closed loop): adamli_paired.csv.
+# its cells (the paper's AdaMLI, the oracle MLI and BC-LSTM under the same noise, the clean closed loop).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"

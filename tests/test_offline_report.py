@@ -109,12 +109,13 @@ def test_a_sweep_without_the_papers_setting_is_paired_with_make_cpu_claims_cells
     _records(claims / "all/nostra+nostra_mli+nostra_adamli/records/LiftD1/all", "nostra_mli", wins=3)
     _records(claims / "all/nostra+nostra_mli+nostra_adamli/records/LiftD1/all", "nostra", wins=0)
     _records(claims / "none/records/LiftD1/none", "nostra", wins=4)
-    _records(claims / "none/records/LiftD1/none", "lstm", wins=2)  # not a cell AdaMLI is compared with
+    _records(claims / "all/lstm/records/LiftD1/all", "lstm", wins=0)
+    _records(claims / "none/records/LiftD1/none", "lstm", wins=2)  # another noise: not paired with `all`
     main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--no-figures",
           "--rollouts", str(tmp_path / "rollouts"), "--reference", str(claims)])
     pairs = pd.read_csv(tmp_path / "out/adamli_paired.csv")
-    assert set(pairs.seed) == {1} and list(pairs.against) == ["paper's thresholds", "oracle MLI", "clean, closed loop"]
-    assert list(pairs["diff"]) == [0.75, 0.25, 0.0] and list(pairs.a_only) == [3, 1, 0]
+    assert set(pairs.seed) == {1} and list(pairs.against) == ["paper's thresholds", "oracle MLI", "clean, closed loop", "BC-LSTM"]
+    assert list(pairs["diff"]) == [0.75, 0.25, 0.0, 1.0] and list(pairs.a_only) == [3, 1, 0, 4]
     text = (tmp_path / "out/offline.md").read_text()
     assert "| 1 | 6 | all | paper's thresholds | 4 | +75 [+25, +100] | 3 / 0 | 0.25 |" in text
     with pytest.raises(FileNotFoundError, match="--reference .*nowhere: no such folder"):

@@ -102,7 +102,8 @@ def with_success(sweep: pd.DataFrame, rollouts: pd.DataFrame) -> pd.DataFrame:
 
 
 # the cells of `make cpu-claims` (same checkpoint, same initial states) a threshold setting is paired with
-REFERENCES = {"nostra_adamli": "paper's thresholds", "nostra_mli": "oracle MLI", "nostra": "clean, closed loop"}
+REFERENCES = {"nostra_adamli": "paper's thresholds", "nostra_mli": "oracle MLI", "nostra": "clean, closed loop",
+              "lstm": "BC-LSTM"}
 
 
 def reference_cells(reference: Path) -> dict[tuple[str, str], pd.Series]:
@@ -118,8 +119,8 @@ def reference_cells(reference: Path) -> dict[tuple[str, str], pd.Series]:
 def paired_thresholds(sweep: pd.DataFrame, root: Path, reference: Path | None = None) -> pd.DataFrame:
     """Each threshold setting's closed-loop success per rollout noise against the paper's setting
     (AdaMLIConfig's defaults: the sweep's own cell, else the reference's nostra_adamli), and, with
-    ``reference`` (make cpu-claims' records of the same checkpoint), against the oracle MLI under the
-    same noise and the closed-loop policy with no noise; paired over the initial states both met:
+    ``reference`` (make cpu-claims' records of the same checkpoint), against the oracle MLI and BC-LSTM
+    under the same noise and the closed-loop policy with no noise; paired over the initial states both met:
     difference, 95% CI, McNemar exact p (claims.paired). Column ``against`` names the other cell; a
     setting s<k>-... is paired only with cells of training seed k."""
     from nostra.policies.imagination import AdaMLIConfig
@@ -146,7 +147,8 @@ def paired_thresholds(sweep: pd.DataFrame, root: Path, reference: Path | None = 
         mine = ref.get(seed(s))
         others = {"nostra_adamli": cell.get((mine, noise), refs.get((noise, "nostra_adamli"))) if s != mine else None,
                   "nostra_mli": refs.get((noise, "nostra_mli")),
-                  "nostra": refs.get(("none", "nostra")) if noise != "none" else None}
+                  "nostra": refs.get(("none", "nostra")) if noise != "none" else None,
+                  "lstm": refs.get((noise, "lstm"))}
         rows += [{"seed": int(seed(s)[1:]), **{k: params.loc[s, k] for k in varied}, "noise": noise, "against": REFERENCES[v], **paired(c, b)}
                  for v, b in others.items() if b is not None]
     return pd.DataFrame(rows).sort_values(["seed", *varied, "noise"], kind="stable").reset_index(drop=True) if rows else pd.DataFrame()
@@ -256,7 +258,7 @@ def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict
         varied = list(pairs.columns[:pairs.columns.get_loc("noise")])  # seed, the thresholds: paired_thresholds' order
         lines += ["Closed-loop success of each setting minus another cell's, paired over the initial states both met "
                   "(`adamli_paired.csv`): the paper's thresholds, and where make cpu-claims' cells of the same checkpoint "
-                  "were given, the oracle MLI under the same noise and the closed-loop policy with no noise:", "",
+                  "were given, the oracle MLI and BC-LSTM under the same noise and the closed-loop policy with no noise:", "",
                   "| " + " | ".join(varied) + " | rollout noise | minus | n | difference (points) [95% CI] | "
                   "only this / only the other | McNemar exact p |", "|---" * (len(varied) + 6) + "|"]
         lines += ["| " + " | ".join(f"{getattr(r, k):g}" for k in varied) + f" | {r.noise} | {r.against} | {r.n} | "
@@ -286,7 +288,7 @@ def main(argv: list[str] | None = None) -> None:
                     help="the threshold sweep's rollouts (<dir>/<setting>/**/records): closed-loop success per setting")
     ap.add_argument("--reference", type=Path, default=None,
                     help="make cpu-claims' records of the same checkpoint (<evaluate>/<task>/s<seed>/best): each "
-                         "setting is paired with its oracle MLI, its clean closed loop and its paper's AdaMLI")
+                         "setting is paired with its oracle MLI, its clean closed loop, its paper's AdaMLI and BC-LSTM")
     args = ap.parse_args(argv)
     if args.reference is not None and not args.reference.is_dir():
         raise FileNotFoundError(f"--reference {args.reference}: no such folder (make cpu-claims writes "
