@@ -138,20 +138,21 @@ def paired_thresholds(sweep: pd.DataFrame, root: Path, reference: Path | None = 
     ref = {seed(s): s for s, r in params.iterrows() if all(r[k] == v for k, v in paper.items())}
     cell = {k: g.set_index("episode")["success"] for k, g in ep.groupby(["setting", "noise"])}
     # the reference's cells belong to one training seed: its folder <evaluate>/<task>/s<seed>/<checkpoint>
-    claims = (reference.parent.name, reference_cells(reference)) if reference is not None else (None, {})
+    claims_seed, claims = (reference.parent.name, reference_cells(reference)) if reference is not None else (None, {})
     rows = []
     for (s, noise), c in cell.items():
         if s not in params.index:
             continue
-        refs = claims[1] if claims[0] == seed(s) else {}
-        mine = ref.get(seed(s))
+        refs, mine = (claims if claims_seed == seed(s) else {}), ref.get(seed(s))
         others = {"nostra_adamli": cell.get((mine, noise), refs.get((noise, "nostra_adamli"))) if s != mine else None,
                   "nostra_mli": refs.get((noise, "nostra_mli")),
                   "nostra": refs.get(("none", "nostra")) if noise != "none" else None,
                   "lstm": refs.get((noise, "lstm"))}
-        rows += [{"seed": int(seed(s)[1:]), **{k: params.loc[s, k] for k in varied}, "noise": noise, "against": REFERENCES[v], **paired(c, b)}
-                 for v, b in others.items() if b is not None]
-    return pd.DataFrame(rows).sort_values(["seed", *varied, "noise"], kind="stable").reset_index(drop=True) if rows else pd.DataFrame()
+        rows += [{"seed": int(seed(s)[1:]), **{k: params.loc[s, k] for k in varied}, "noise": noise,
+                  "against": REFERENCES[v], **paired(c, b)} for v, b in others.items() if b is not None]
+    if not rows:
+        return pd.DataFrame()
+    return pd.DataFrame(rows).sort_values(["seed", *varied, "noise"], kind="stable").reset_index(drop=True)
 
 
 def _varied(sweep: pd.DataFrame) -> list[str]:
