@@ -2,7 +2,10 @@
 same initial states (McNemar exact, bootstrap interval), AdaMLI's false imagination, and verdicts
 that are 'not testable' unless the preconditions hold."""
 
+import shutil
+
 import numpy as np
+import pandas as pd
 import pytest
 
 from nostra.workflows.claims import load_records, paired_table, success_table, verdicts, write_report
@@ -168,3 +171,46 @@ def test_adamli_detection_per_modality_and_gripper_phase(tmp_path):
     assert "| proprio_zero | robot0_gripper_qpos | yes | 50% | 100% | 0% | 50% |" in report
     assert "| BC-NOSTRA + AdaMLI | 50 [" in report and "| proprio_zero |" in report.split("### Paired")[1]
     assert (tmp_path / "out" / "adamli_detection.csv").is_file()
+
+
+def test_pooling_seed_reports_equals_pooling_their_records(tmp_path):
+    """Seeds reported apart (records on different disks) pool to the numbers the records give together."""
+    from nostra.workflows.claims_pool import write_pooled
+
+    _scenario(tmp_path / "both", mli_mask=[True] * 8 + [False] * 2, lstm_mask=[False] * 7 + [True] * 3)
+    _write(tmp_path / "both", 1, "best", "mask", "lstm", [True] * 6 + [False] * 4)  # seeds differ
+    for seed in (0, 1):  # each seed's records alone, as on its own machine
+        shutil.copytree(tmp_path / "both" / f"s{seed}", tmp_path / f"alone{seed}" / f"s{seed}")
+        write_report(tmp_path / f"alone{seed}", tmp_path / f"report{seed}")
+    write_report(tmp_path / "both", tmp_path / "together")
+    text = write_pooled([tmp_path / "report0", tmp_path / "report1"], tmp_path / "pooled")
+
+    key = ["checkpoint", "seed", "noise", "a", "b"]
+    want = pd.read_csv(tmp_path / "together" / "paired.csv", dtype={"seed": str}).set_index(key).sort_index()
+    got = pd.read_csv(tmp_path / "pooled" / "paired.csv", dtype={"seed": str}).set_index(key).sort_index()
+    assert list(got.index) == list(want.index)
+    exact = ["n", "rate_a", "rate_b", "diff", "a_only", "b_only", "p"]
+    pd.testing.assert_frame_equal(got[exact], want[exact], check_dtype=False)
+    assert (got.ci_low - want.ci_low).abs().max() <= 0.05  # the bootstrap draws over another episode order
+    s_want = pd.read_csv(tmp_path / "together" / "table1.csv", dtype={"seed": str}).set_index(key[:2] + ["variant", "noise"])
+    s_got = pd.read_csv(tmp_path / "pooled" / "table1.csv", dtype={"seed": str}).set_index(key[:2] + ["variant", "noise"])
+    pd.testing.assert_frame_equal(s_got.sort_index()[["k", "n", "rate"]], s_want.sort_index()[["k", "n", "rate"]],
+                                  check_dtype=False)
+    assert "false imagination on clean episodes: 25% of steps (20 episodes)" in text
+    assert "### Claims (pooled)" in text
+
+
+def test_pooling_refuses_a_seed_twice_and_a_missing_file(tmp_path):
+    from nostra.workflows.claims_pool import write_pooled
+
+    _scenario(tmp_path / "ev", mli_mask=[True] * 10, lstm_mask=[False] * 10)
+    write_report(tmp_path / "ev", tmp_path / "both")
+    with pytest.raises(ValueError, match="training seed 0 is in both"):
+        write_pooled([tmp_path / "both", tmp_path / "both"], tmp_path / "out")
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken" / "table1.csv").write_text("checkpoint,seed\nbest,3\n")
+    with pytest.raises(ValueError, match=r"broken/table1.csv: missing column\(s\) variant, noise, k, n"):
+        write_pooled([tmp_path / "both", tmp_path / "broken"], tmp_path / "out")
+    with pytest.raises(FileNotFoundError, match="nowhere/table1.csv: missing"):
+        write_pooled([tmp_path / "both", tmp_path / "nowhere"], tmp_path / "out")
+    assert not (tmp_path / "out").exists()

@@ -15,6 +15,7 @@ INDEX = "index.md"
 COMMAND = re.compile(r"^(?:- Command: )?`([^`]+)`")
 WALL = re.compile(r"^- Wall time[^:]*: (.+)$")
 MACHINE = re.compile(r"^- Machine: (.+)$")
+TRAINING_SEEDS = re.compile(r"^- Training seeds: ([0-9, ]*[0-9])")  # a report whose command names no SEEDS=
 SEEDS = re.compile(r"\bSEEDS?=\"?([0-9 ]+)\"?")
 
 
@@ -23,13 +24,14 @@ def describe(path: Path) -> dict:
     lines = path.read_text().splitlines()
     if not lines or not lines[0].startswith("# "):
         raise ValueError(f"{path}: a report starts with a '# ' title line, found {lines[:1]!r}")
-    info = {"title": lines[0][2:].strip(), "command": "", "wall": "", "machine": ""}
+    info = {"title": lines[0][2:].strip(), "command": "", "wall": "", "machine": "", "listed": ""}
     for line in lines[1:40]:
-        for key, pattern in (("command", COMMAND), ("wall", WALL), ("machine", MACHINE)):
+        for key, pattern in (("command", COMMAND), ("wall", WALL), ("machine", MACHINE), ("listed", TRAINING_SEEDS)):
             m = pattern.match(line)
             if m and not info[key]:
                 info[key] = m[1].strip()
-    seeds = sorted({s for m in SEEDS.finditer(info["command"]) for s in m[1].split()}, key=int)
+    named = [m[1] for m in SEEDS.finditer(info["command"])] + [info.pop("listed").replace(",", " ")]
+    seeds = sorted({s for m in named for s in m.split()}, key=int)
     info["seeds"] = ", ".join(seeds)
     return info
 
