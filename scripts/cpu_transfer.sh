@@ -15,6 +15,7 @@
 # from last.ckpt. TABLES picks the tables to run (default both, Table 4 first):
 #   TASK=liftd1 SEEDS=0 make cpu-transfer
 #   TABLES=5 COTRAIN_MODELS="nostra lstm" make cpu-transfer
+#   TABLES=5 SEEDS=1 OUT=reports/cpu/liftd1/transfer-s1 make cpu-transfer   # a seed reported apart
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -33,7 +34,7 @@ MINUTES_FT=${MINUTES_FT:-15}              # fine-tuning and co-training, rollout
 ROLLOUT_EVERY=${ROLLOUT_EVERY:-500}
 OBS=rgb CAPACITY=configured source scripts/cpu_setup.sh   # PROFILE=cpu, RUNS, collection
 EVAL=$RUNS/evaluate/$TASK-transfer
-OUT=reports/cpu/$TASK/transfer
+OUT=${OUT:-reports/cpu/$TASK/transfer}   # another folder keeps a report whose records are not on this disk
 COMMON="profile=$PROFILE task=$TASK paths.runs=$RUNS"
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 start=$(date +%s)
@@ -118,7 +119,7 @@ if has 5; then
 fi
 
 python -m nostra.workflows.transfer_report --evaluations "$EVAL" --out "$OUT" --target-demos $N_TARGET \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" TABLES=\"$TABLES\" MODELS=\"$MODELS\" COTRAIN_MODELS=\"$COTRAIN_MODELS\" DEMOS=\"$DEMOS\" N_TARGET=$N_TARGET BUDGET_OBJ=$BUDGET_OBJ BUDGET_ALL=$BUDGET_ALL LIBRARY=\"$LIBRARY\" MINUTES_PRE=$MINUTES_PRE MINUTES_FT=$MINUTES_FT make cpu-transfer" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" TABLES=\"$TABLES\" MODELS=\"$MODELS\" COTRAIN_MODELS=\"$COTRAIN_MODELS\" DEMOS=\"$DEMOS\" N_TARGET=$N_TARGET BUDGET_OBJ=$BUDGET_OBJ BUDGET_ALL=$BUDGET_ALL LIBRARY=\"$LIBRARY\" MINUTES_PRE=$MINUTES_PRE MINUTES_FT=$MINUTES_FT OUT=$OUT make cpu-transfer" \
   --note "Pretraining: ${TASK}_occluded_pre_cpu (agent view occluded, seeds 2000+), $MINUTES_PRE min per model; fine-tuning and co-training: $MINUTES_FT min, a 10-episode check every $ROLLOUT_EVERY steps" \
   --note "Retrieval index (target never retrieved): $pool" \
   --wall-seconds $(( $(date +%s) - start ))
