@@ -211,6 +211,6 @@ def test_pooling_refuses_a_seed_twice_and_a_missing_file(tmp_path):
     (tmp_path / "broken" / "table1.csv").write_text("checkpoint,seed\nbest,3\n")
     with pytest.raises(ValueError, match=r"broken/table1.csv: missing column\(s\) variant, noise, k, n"):
         write_pooled([tmp_path / "both", tmp_path / "broken"], tmp_path / "out")
-    with pytest.raises(FileNotFoundError, match="nowhere/table1.csv: missing"):
+    with pytest.raises(FileNotFoundError, match="nowhere: neither table1.csv"):
         write_pooled([tmp_path / "both", tmp_path / "nowhere"], tmp_path / "out")
     assert not (tmp_path / "out").exists()

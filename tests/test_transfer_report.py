@@ -60,3 +60,48 @@ def test_unknown_setting_folder(tmp_path):
         load_records(tmp_path)
     with pytest.raises(FileNotFoundError, match="no episode records"):
         load_records(tmp_path / "empty")
+
+
+def test_pooling_seed_reports_equals_pooling_their_records(tmp_path):
+    """Tables 4 and 5 of seeds reported apart pool to the numbers their records give together."""
+    import shutil
+
+    import pandas as pd
+
+    from nostra.workflows.claims_pool import write_pooled
+
+    _scenario(tmp_path / "both")
+    _write(tmp_path / "both", 1, "finetune-n10", "nostra", [True] * 12 + [False] * 8)
+    _write(tmp_path / "both", 1, "finetune-n10", "rssm", [True] * 14 + [False] * 6)
+    _write(tmp_path / "both", 1, "cotrain-target_only", "nostra", [False] * 10 + [True] * 10)
+    for seed in (0, 1):
+        shutil.copytree(tmp_path / "both" / f"s{seed}", tmp_path / f"alone{seed}" / f"s{seed}")
+        write_report(tmp_path / f"alone{seed}", tmp_path / f"report{seed}", target_demos=10)
+    write_report(tmp_path / "both", tmp_path / "together", target_demos=10)
+    text = write_pooled([tmp_path / "report0", tmp_path / "report1"], tmp_path / "pooled")
+
+    key = ["seed", "table", "a_setting", "a", "b_setting", "b"]
+    want = pd.read_csv(tmp_path / "together" / "paired.csv", dtype={"seed": str}).set_index(key).sort_index()
+    got = pd.read_csv(tmp_path / "pooled" / "paired.csv", dtype={"seed": str}).set_index(key).sort_index()
+    assert set(got.index) <= set(want.index)
+    assert ("pooled", "Table 4", "finetune-n10", "nostra", "finetune-n10", "rssm") in got.index
+    # seed 1 has no cotrain-all run: the records' report pools seed 0 alone there, the pool leaves it out
+    assert ("pooled", "Table 5", "cotrain-all", "nostra", "cotrain-target_only", "nostra") not in got.index
+    exact = ["n", "rate_a", "rate_b", "diff", "a_only", "b_only", "p"]
+    pd.testing.assert_frame_equal(got[exact], want.loc[got.index, exact], check_dtype=False)
+    s = pd.read_csv(tmp_path / "pooled" / "success.csv", dtype={"seed": str}).set_index(["seed", "setting", "variant"])
+    assert s.loc[("pooled", "finetune-n10", "nostra"), "k"] == 28 and ("pooled", "cotrain-all", "nostra") not in s.index
+    assert "## Claims (pooled)" in text and (tmp_path / "pooled" / "transfer.png").is_file()
+
+
+def test_pooling_refuses_reports_of_two_kinds(tmp_path):
+    from nostra.workflows.claims_pool import write_pooled
+
+    _scenario(tmp_path / "ev")
+    write_report(tmp_path / "ev", tmp_path / "transfer")
+    (tmp_path / "claims").mkdir()
+    (tmp_path / "claims" / "table1.csv").write_text("checkpoint,seed,variant,noise,k,n\n")
+    with pytest.raises(ValueError, match=r"different kinds: .*transfer \(transfer\), .*claims \(claims\)"):
+        write_pooled([tmp_path / "transfer", tmp_path / "claims"], tmp_path / "out")
+    with pytest.raises(FileNotFoundError, match="neither table1.csv"):
+        write_pooled([tmp_path / "transfer", tmp_path / "ev"], tmp_path / "out")

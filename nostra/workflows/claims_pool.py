@@ -1,10 +1,13 @@
-"""The claims pooled over training seeds from each seed's claims report, for seeds whose episode
-records are not on one disk (evaluated on different machines, or records since deleted).
+"""A report pooled over training seeds from each seed's report, for seeds whose episode records are
+not on one disk (evaluated on different machines, or records since deleted): claims reports
+(Tables 1 and 2, python -m nostra.workflows.claims) or transfer reports (Tables 4 and 5,
+python -m nostra.workflows.transfer_report), told apart by their files.
 
     python -m nostra.workflows.claims_pool --reports reports/cpu-rgbd/liftd1/claims \
         reports/cpu-rgbd/liftd1/claims-s1 --out reports/cpu-rgbd/liftd1/claims-pooled
 
-Reads each report's table1.csv and paired.csv (the per-seed rows) and writes the same report pooled.
+Reads each report's success table (table1.csv or success.csv) and paired.csv (the per-seed rows) and
+writes the same report pooled.
 Nothing is approximated: a pooled success is the sum of the seeds' successes, and a pooled paired
 comparison only needs each seed's 2x2 table (both / only a / only b / neither, all in paired.csv),
 so the episodes are rebuilt from those counts and go through claims.paired as if read from the
@@ -16,44 +19,67 @@ all of them).
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from nostra.workflows import claims
+from nostra.workflows import claims, transfer_report
 from nostra.workflows.evaluation import wilson
 
-SUCCESS_COLUMNS = ["checkpoint", "seed", "variant", "noise", "k", "n"]
-PAIRED_COLUMNS = ["checkpoint", "seed", "noise", "a", "b", "n", "rate_a", "a_only", "b_only"]
+
+@dataclass(frozen=True)
+class Kind:
+    """A report's files and the columns that name one cell (success) and one comparison (paired)."""
+    name: str
+    success_file: str
+    cell: list[str]
+    pair: list[str]
+
+
+CLAIMS = Kind("claims", "table1.csv", ["checkpoint", "variant", "noise"], ["checkpoint", "noise", "a", "b"])
+TRANSFER = Kind("transfer", "success.csv", ["setting", "variant"], ["table", "a_setting", "a", "b_setting", "b"])
+COUNTS = ["seed", "n", "rate_a", "a_only", "b_only"]
+
+
+def kind_of(report: Path) -> Kind:
+    for kind in (CLAIMS, TRANSFER):
+        if (report / kind.success_file).is_file():
+            return kind
+    raise FileNotFoundError(f"{report}: neither table1.csv (a claims report) nor success.csv (a transfer report)")
 
 
 def _read(path: Path, columns: list[str]) -> pd.DataFrame:
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: missing; a claims report (python -m nostra.workflows.claims) writes it")
+        raise FileNotFoundError(f"{path}: missing; the report's command writes it")
     df = pd.read_csv(path, dtype={"seed": str})
     if missing := [c for c in columns if c not in df.columns]:
         raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected {', '.join(columns)}")
     return df[df.seed != claims.POOLED]
 
 
-def read_reports(reports: list[Path]) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
-    """The per-seed rows of every report's table1.csv, paired.csv and false_imagination.csv; a
-    training seed found in two reports is an error (it would be counted twice)."""
+def read_reports(reports: list[Path]) -> tuple[Kind, pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """The reports' kind and the per-seed rows of their success table, paired.csv and (claims)
+    false_imagination.csv; a training seed found in two reports is an error (it would count twice)."""
+    kinds = {r: kind_of(r) for r in reports}
+    if len({k.name for k in kinds.values()}) > 1:
+        raise ValueError("reports of different kinds: " + ", ".join(f"{r} ({k.name})" for r, k in kinds.items()))
+    kind = kinds[reports[0]]
     success, pairs, fir, owner = [], [], [], {}
     for r in reports:
-        s = _read(r / "table1.csv", SUCCESS_COLUMNS)
+        s = _read(r / kind.success_file, ["seed", *kind.cell, "k", "n"])
         for seed in sorted(set(s.seed)):
             if seed in owner:
                 raise ValueError(f"training seed {seed} is in both {owner[seed]} and {r}; pool each seed once")
             owner[seed] = r
         success.append(s)
-        pairs.append(_read(r / "paired.csv", PAIRED_COLUMNS))
+        pairs.append(_read(r / "paired.csv", kind.pair + COUNTS))
         if (r / "false_imagination.csv").is_file():
             fir.append(_read(r / "false_imagination.csv", ["checkpoint", "seed", "mean", "count"]))
     if len(owner) < 2:
         raise ValueError(f"{', '.join(map(str, reports))}: {len(owner)} training seed(s); pooling needs two or more")
-    return pd.concat(success), pd.concat(pairs), pd.concat(fir) if fir else pd.DataFrame()
+    return kind, pd.concat(success), pd.concat(pairs), pd.concat(fir) if fir else pd.DataFrame()
 
 
 def _complete(groups, seeds: set[str]):
@@ -63,16 +89,14 @@ def _complete(groups, seeds: set[str]):
             yield key, g
 
 
-def pool_success(success: pd.DataFrame) -> pd.DataFrame:
+def pool_success(success: pd.DataFrame, kind: Kind = CLAIMS) -> pd.DataFrame:
     seeds, rows = set(success.seed), []
-    for (ck, v, noise), g in _complete(success.groupby(["checkpoint", "variant", "noise"]), seeds):
-        rows.append({"checkpoint": ck, "seed": claims.POOLED, "variant": v, "noise": noise,
-                     "k": int(g.k.sum()), "n": int(g.n.sum())})
-    pooled = pd.DataFrame(rows)
-    out = pd.concat([success[SUCCESS_COLUMNS], pooled], ignore_index=True)
+    for key, g in _complete(success.groupby(kind.cell), seeds):
+        rows.append({"seed": claims.POOLED, **dict(zip(kind.cell, key)), "k": int(g.k.sum()), "n": int(g.n.sum())})
+    out = pd.concat([success[["seed", *kind.cell, "k", "n"]], pd.DataFrame(rows)], ignore_index=True)
     out["rate"] = out.k / out.n
     out[["ci_low", "ci_high"]] = [wilson(int(k), int(n)) for k, n in zip(out.k, out.n)]
-    return out
+    return out[list(success.columns)]  # the reports' column order
 
 
 def _episodes(r) -> tuple[np.ndarray, np.ndarray]:
@@ -80,20 +104,17 @@ def _episodes(r) -> tuple[np.ndarray, np.ndarray]:
     both = int(round(r.n * r.rate_a)) - int(r.a_only)
     neither = int(r.n) - both - int(r.a_only) - int(r.b_only)
     if min(both, neither) < 0:
-        raise ValueError(f"paired row {r.a} - {r.b} under {r.noise} (seed {r.seed}): counts do not add up to n = {r.n}")
+        raise ValueError(f"paired row {r.a} - {r.b} (seed {r.seed}): counts do not add up to n = {r.n}")
     counts = [both, int(r.a_only), int(r.b_only), neither]
-    x = np.repeat([True, True, False, False], counts)
-    y = np.repeat([True, False, True, False], counts)
-    return x, y
+    return np.repeat([True, True, False, False], counts), np.repeat([True, False, True, False], counts)
 
 
-def pool_pairs(pairs: pd.DataFrame) -> pd.DataFrame:
+def pool_pairs(pairs: pd.DataFrame, kind: Kind = CLAIMS) -> pd.DataFrame:
     seeds, rows = set(pairs.seed), []
-    for (ck, noise, a, b), g in _complete(pairs.groupby(["checkpoint", "noise", "a", "b"], sort=False), seeds):
+    for key, g in _complete(pairs.groupby(kind.pair, sort=False), seeds):
         xs, ys = zip(*(_episodes(r) for r in g.itertuples()))
-        x, y = np.concatenate(xs), np.concatenate(ys)
-        rows.append({"checkpoint": ck, "seed": claims.POOLED, "noise": noise, "a": a, "b": b,
-                     **claims.paired(pd.Series(x), pd.Series(y))})
+        rows.append({"seed": claims.POOLED, **dict(zip(kind.pair, key)),
+                     **claims.paired(pd.Series(np.concatenate(xs)), pd.Series(np.concatenate(ys)))})
     return pd.concat([pairs, pd.DataFrame(rows)], ignore_index=True)
 
 
@@ -107,14 +128,8 @@ def pool_false_imagination(fir: pd.DataFrame) -> pd.DataFrame:
     return pd.concat([fir, pd.DataFrame(rows)], ignore_index=True)
 
 
-def write_pooled(reports: list[Path], out: Path, header: list[str] = ()) -> str:
-    success, pairs, fir = read_reports(reports)
-    success, pairs, fir = pool_success(success), pool_pairs(pairs), pool_false_imagination(fir)
-    seeds = sorted(set(success.seed) - {claims.POOLED}, key=int)
-    text = ["# The paper's claims at CPU scale, pooled over training seeds", "", *[h for h in header if h],
-            f"- Training seeds: {', '.join(seeds)} (each report names the command, machine and wall time of its runs)",
-            f"- Pooled from the claims reports {', '.join(f'`{r}`' for r in reports)}: every (training seed, "
-            "episode) once; a cell or comparison is pooled only where every seed has it.", "", "Success in % over the episodes of each cell (95% Wilson interval).", ""]
+def claims_markdown(success: pd.DataFrame, pairs: pd.DataFrame, fir: pd.DataFrame, seeds: list[str]) -> list[str]:
+    text = ["Success in % over the episodes of each cell (95% Wilson interval).", ""]
     for ck in [c for c in ("best", "last") if c in set(success.checkpoint)]:
         text += [f"## Checkpoint: {ck}", ""]
         for seed in seeds + [claims.POOLED]:
@@ -128,18 +143,44 @@ def write_pooled(reports: list[Path], out: Path, header: list[str] = ()) -> str:
         if len(f):
             text += [f"AdaMLI false imagination on clean episodes: {100 * f['mean'].iloc[0]:.0f}% of steps "
                      f"({int(f['count'].iloc[0])} episodes).", ""]
+    return text
+
+
+def transfer_markdown(success: pd.DataFrame, pairs: pd.DataFrame, seeds: list[str]) -> list[str]:
+    text = ["Success in % over the episodes of each cell (95% Wilson interval), clean rollouts with each run's best "
+            "checkpoint.", ""]
+    for seed in seeds + [claims.POOLED]:
+        text += [f"## Training seed {seed}", "", *transfer_report.tables_markdown(success, seed)]
+    for seed in seeds + [claims.POOLED]:
+        text += [f"## Paired comparisons, training seed {seed}", "", *transfer_report.paired_markdown(pairs, seed), ""]
+    return text + ["## Claims (pooled)", "", *transfer_report.verdicts(pairs), "",
+                   "![success per cell, pooled](transfer.png)", ""]
+
+
+def write_pooled(reports: list[Path], out: Path, header: list[str] = ()) -> str:
+    kind, success, pairs, fir = read_reports(reports)
+    success, pairs, fir = pool_success(success, kind), pool_pairs(pairs, kind), pool_false_imagination(fir)
+    seeds = sorted(set(success.seed) - {claims.POOLED}, key=int)
+    title = {"claims": "The paper's claims at CPU scale", "transfer": "Tables 4 and 5 at CPU scale"}[kind.name]
+    text = [f"# {title}, pooled over training seeds", "", *[h for h in header if h],
+            f"- Training seeds: {', '.join(seeds)} (each report names the command, machine and wall time of its runs)",
+            f"- Pooled from the reports {', '.join(f'`{r}`' for r in reports)}: every (training seed, episode) "
+            "once; a cell or comparison is pooled only where every seed has it.", ""]
+    text += (claims_markdown(success, pairs, fir, seeds) if kind is CLAIMS else transfer_markdown(success, pairs, seeds))
     out.mkdir(parents=True, exist_ok=True)
-    success.to_csv(out / "table1.csv", index=False)
+    success.to_csv(out / kind.success_file, index=False)
     pairs.to_csv(out / "paired.csv", index=False)
     if len(fir):
         fir.to_csv(out / "false_imagination.csv", index=False)
-    (out / "claims.md").write_text("\n".join(text))
+    if kind is TRANSFER:
+        transfer_report.figure(success, out / "transfer.png")
+    (out / f"{kind.name}.md").write_text("\n".join(text))
     return "\n".join(text)
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--reports", required=True, nargs="+", type=Path, help="claims report folders, one or more seeds each")
+    ap.add_argument("--reports", required=True, nargs="+", type=Path, help="report folders, one or more seeds each")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--command", default=None, help="the command that wrote this report (for the header)")
     args = ap.parse_args(argv)
