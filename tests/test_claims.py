@@ -214,3 +214,13 @@ def test_pooling_refuses_a_seed_twice_and_a_missing_file(tmp_path):
     with pytest.raises(FileNotFoundError, match="nowhere: neither table1.csv"):
         write_pooled([tmp_path / "both", tmp_path / "nowhere"], tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def test_pooled_cell_that_some_seeds_ran_says_so(tmp_path):
+    _scenario(tmp_path, mli_mask=[True] * 10, lstm_mask=[False] * 10)
+    _write(tmp_path, 0, "best", "none", "rssm", [True] * 10)  # BC-RSSM trained on seed 0 alone
+    report = write_report(tmp_path, tmp_path / "out")
+    pooled = report.split("### Table 1, training seed pooled")[1].split("###")[0]
+    assert "| BC-RSSM | 100 [72, 100] (seed 0 only) |" in pooled
+    assert "| BC-LSTM | 100 [84, 100] |" in pooled  # both seeds: nothing added
+    assert "(seed 0 only)" not in report.split("### Table 1, training seed pooled")[0]  # per-seed tables

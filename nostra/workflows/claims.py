@@ -118,9 +118,11 @@ def _with_pooled(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def success_table(df: pd.DataFrame) -> pd.DataFrame:
-    """Success per (checkpoint, seed, variant, noise): k, n, rate and its 95% Wilson interval."""
-    g = _with_pooled(df).groupby(["checkpoint", "seed", "variant", "noise"])["success"]
-    t = g.agg(k="sum", n="count").reset_index()
+    """Success per (checkpoint, seed, variant, noise): k, n, rate and its 95% Wilson interval, and the
+    training seeds a cell holds (a pooled cell that only some seeds ran is marked in the tables)."""
+    g = _with_pooled(df.assign(origin=df.seed)).groupby(["checkpoint", "seed", "variant", "noise"])
+    t = g.agg(k=("success", "sum"), n=("success", "count"),
+              seeds=("origin", lambda x: " ".join(map(str, sorted(set(x)))))).reset_index()
     t["rate"] = t.k / t.n
     t[["ci_low", "ci_high"]] = [wilson(int(k), int(n)) for k, n in zip(t.k, t.n)]
     return t
@@ -238,17 +240,22 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
     return lines
 
 
-def _cell(r) -> str:
-    return f"{100 * r.rate:.0f} [{100 * r.ci_low:.0f}, {100 * r.ci_high:.0f}]"
+def _cell(r, every: set[str] = frozenset()) -> str:
+    """rate [CI]; a pooled cell that not every training seed ran names the seeds it holds."""
+    held = set(str(getattr(r, "seeds", "")).split())
+    only = f" (seed {', '.join(sorted(held, key=int))} only)" if every and held and held != every else ""
+    return f"{100 * r.rate:.0f} [{100 * r.ci_low:.0f}, {100 * r.ci_high:.0f}]{only}"
 
 
 def success_markdown(success: pd.DataFrame, checkpoint: str, seed: str) -> list[str]:
     s = success[(success.checkpoint == checkpoint) & (success.seed == seed)]
+    every = set(success[success.checkpoint == checkpoint].seed.astype(str)) - {POOLED} if seed == POOLED else set()
     noises = [n for n in NOISE_ORDER if n in set(s.noise)]
     lines = ["| Method | " + " | ".join(noises) + " |", "|---" * (len(noises) + 1) + "|"]
     for v in [v for v in ROWS if v in set(s.variant)]:
         r = s[s.variant == v].set_index("noise")
-        lines.append(f"| {LABELS.get(v, v)} | " + " | ".join(_cell(r.loc[n]) if n in r.index else "–" for n in noises) + " |")
+        lines.append(f"| {LABELS.get(v, v)} | " + " | ".join(_cell(r.loc[n], every) if n in r.index else "–"
+                                                             for n in noises) + " |")
     return lines
 
 

@@ -53,7 +53,7 @@ def kind_of(report: Path) -> Kind:
 def _read(path: Path, columns: list[str]) -> pd.DataFrame:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing; the report's command writes it")
-    df = pd.read_csv(path, dtype={"seed": str})
+    df = pd.read_csv(path, dtype={"seed": str, "seeds": str})
     if missing := [c for c in columns if c not in df.columns]:
         raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected {', '.join(columns)}")
     return df[df.seed != claims.POOLED]
@@ -92,11 +92,13 @@ def _complete(groups, seeds: set[str]):
 def pool_success(success: pd.DataFrame, kind: Kind = CLAIMS) -> pd.DataFrame:
     seeds, rows = set(success.seed), []
     for key, g in _complete(success.groupby(kind.cell), seeds):
-        rows.append({"seed": claims.POOLED, **dict(zip(kind.cell, key)), "k": int(g.k.sum()), "n": int(g.n.sum())})
-    out = pd.concat([success[["seed", *kind.cell, "k", "n"]], pd.DataFrame(rows)], ignore_index=True)
+        rows.append({"seed": claims.POOLED, **dict(zip(kind.cell, key)), "k": int(g.k.sum()), "n": int(g.n.sum()),
+                     "seeds": " ".join(sorted(seeds, key=int))})  # every seed: pooled only where all ran
+    out = pd.concat([success[["seed", *kind.cell, "k", "n"]].assign(seeds=success.seed), pd.DataFrame(rows)],
+                    ignore_index=True)
     out["rate"] = out.k / out.n
     out[["ci_low", "ci_high"]] = [wilson(int(k), int(n)) for k, n in zip(out.k, out.n)]
-    return out[list(success.columns)]  # the reports' column order
+    return out[[c for c in success.columns if c in out.columns]]  # the reports' columns, in their order
 
 
 def _episodes(r) -> tuple[np.ndarray, np.ndarray]:
