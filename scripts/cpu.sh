@@ -9,6 +9,7 @@
 #   TASK=stackd1 MINUTES=60 HORIZON=300 SEEDS="0 1" MODELS="lstm nostra" make cpu
 #   OBS=rgbd make cpu    # the policies see agentview depth too (profile cpu_rgbd, Table 2), in data/runs/cpu-rgbd
 #   CAPACITY=matched MODELS="lstm rssm nostra" make cpu   # BC-LSTM and BC-RSSM at NOSTRA's parameter count
+#   SEEDS=2 CPU_OUT=reports/cpu/liftd1/claims-s2/cpu make cpu   # the report elsewhere, not over seeds 0-1's
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -18,7 +19,7 @@ MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
 HORIZON=${HORIZON:-}   # rollout horizon in steps; empty: the profile's (200, enough for Lift)
 source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
-OUT=$REPORTS/$TASK
+OUT=${CPU_OUT:-$REPORTS/$TASK}   # CPU_OUT: elsewhere (a seed run alone, its siblings' runs not on this disk)
 COMMON="profile=$PROFILE task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }

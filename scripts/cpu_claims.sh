@@ -26,6 +26,7 @@ MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
 HORIZON=${HORIZON:-}
 source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
+CPU_OUT=${OUT:+$OUT/cpu}   # with OUT, make cpu's report goes beside it, not over the task's index.md
 OUT=${OUT:-$REPORTS/$TASK/claims}
 case $OBS in
   rgb) NOISES=${NOISES:-none mask cam_jitter table_tex clean_windows blind} ;;
@@ -36,7 +37,7 @@ EVAL=$RUNS/evaluate/$TASK
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
-TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES HORIZON=$HORIZON OBS=$OBS CAPACITY=$CAPACITY bash scripts/cpu.sh
+TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES HORIZON=$HORIZON OBS=$OBS CAPACITY=$CAPACITY CPU_OUT=$CPU_OUT bash scripts/cpu.sh
 
 # the variants each noise needs: under none an imagining variant is its closed-loop policy (nothing to
 # imagine), under clean_windows the closed-loop ones see clean frames (= none); blind keeps the
