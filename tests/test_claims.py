@@ -224,3 +224,36 @@ def test_pooled_cell_that_some_seeds_ran_says_so(tmp_path):
     assert "| BC-RSSM | 100 [72, 100] (seed 0 only) |" in pooled
     assert "| BC-LSTM | 100 [84, 100] |" in pooled  # both seeds: nothing added
     assert "(seed 0 only)" not in report.split("### Table 1, training seed pooled")[0]  # per-seed tables
+
+
+def test_episodes_of_an_earlier_report_pair_with_new_records(tmp_path):
+    """A seed whose records are gone is read back from its report's episodes.csv: with another seed's records
+    the report is the one the records give together, and a variant run later pairs with the earlier episodes."""
+    _scenario(tmp_path / "both", mli_mask=[True] * 8 + [False] * 2, lstm_mask=[False] * 7 + [True] * 3)
+    shutil.copytree(tmp_path / "both" / "s0", tmp_path / "alone0" / "s0")
+    write_report(tmp_path / "alone0", tmp_path / "report0")
+    shutil.copytree(tmp_path / "both" / "s1", tmp_path / "later" / "s1")
+    _write(tmp_path / "later", 0, "best", "mask", "rssm_li", [True] * 4 + [False] * 6)  # seed 0, run later
+    _write(tmp_path / "both", 0, "best", "mask", "rssm_li", [True] * 4 + [False] * 6)
+    earlier = [tmp_path / "report0" / "episodes.csv"]
+    write_report(tmp_path / "later", tmp_path / "merged", earlier=earlier)
+    write_report(tmp_path / "both", tmp_path / "together")
+    for name in ("table1.csv", "paired.csv", "episodes.csv"):
+        got, want = (pd.read_csv(tmp_path / d / name) for d in ("merged", "together"))
+        pd.testing.assert_frame_equal(got, want)
+    pairs = pd.read_csv(tmp_path / "merged" / "paired.csv", dtype={"seed": str})
+    r = pairs[(pairs.seed == "0") & (pairs.a == "nostra_mli") & (pairs.b == "rssm_li")].iloc[0]
+    assert r.n == 10 and r["diff"] == pytest.approx(0.4) and r.a_only == 4 and r.b_only == 0
+
+    # a record evaluated again wins over the earlier report's episode
+    _write(tmp_path / "later", 0, "best", "none", "lstm", [False] * 10)
+    write_report(tmp_path / "later", tmp_path / "again", earlier=earlier)
+    df = pd.read_csv(tmp_path / "again" / "episodes.csv")
+    assert not df[(df.seed == 0) & (df.variant == "lstm") & (df.noise == "none")].success.any()
+
+    (tmp_path / "bad.csv").write_text("seed,checkpoint,noise\n0,best,none\n")
+    with pytest.raises(ValueError, match=r"bad.csv: missing column\(s\) variant, episode, success, imagined_share"):
+        write_report(tmp_path / "later", tmp_path / "out", earlier=[tmp_path / "bad.csv"])
+    with pytest.raises(FileNotFoundError, match="nowhere.csv: no such episodes file"):
+        write_report(tmp_path / "later", tmp_path / "out", earlier=[tmp_path / "nowhere.csv"])
+    assert not (tmp_path / "out").exists()

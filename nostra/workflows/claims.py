@@ -6,6 +6,9 @@ seed>/<checkpoint>/).
 
     python -m nostra.workflows.claims --evaluations data/runs/cpu/evaluate/liftd1 --out reports/cpu/liftd1/claims
 
+The report keeps every episode's outcome (episodes.csv), so a seed evaluated on another disk, or whose
+records are gone, can be read back with ``--episodes <report>/episodes.csv`` and paired with new records.
+
 Every variant meets the same initial states (episode seed k), so variants are compared paired: the
 difference in points with a 95% percentile-bootstrap interval of the mean paired difference
 (scipy.stats.bootstrap) and McNemar's exact p (statsmodels). Pooled over training seeds, an episode
@@ -62,6 +65,29 @@ def load_records(evaluations: Path) -> pd.DataFrame:
             rows[key] = (bool(z["success"]), share)  # a cell evaluated twice: the later folder wins
     index = pd.MultiIndex.from_tuples(rows, names=["seed", "checkpoint", "noise", "variant", "episode"])
     return pd.DataFrame(list(rows.values()), index=index, columns=["success", "imagined_share"]).reset_index()
+
+
+EPISODE_KEY = ["seed", "checkpoint", "noise", "variant", "episode"]
+
+
+def read_episodes(paths: list[Path]) -> pd.DataFrame:
+    """Episodes from earlier reports' episodes.csv (records not on this disk), in load_records' columns."""
+    frames = []
+    for path in paths:
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no such episodes file; a claims report writes <out>/episodes.csv")
+        df = pd.read_csv(path)
+        if missing := [c for c in EPISODE_KEY + ["success", "imagined_share"] if c not in df.columns]:
+            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected "
+                             f"{', '.join(EPISODE_KEY + ['success', 'imagined_share'])}")
+        frames.append(df.astype({"seed": int, "episode": int, "success": bool}))
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def episodes(evaluations: Path, earlier: list[Path] = ()) -> pd.DataFrame:
+    """The records under ``evaluations`` and the episodes of earlier reports; an episode in both: the record."""
+    df = pd.concat([read_episodes(list(earlier)), load_records(evaluations)], ignore_index=True)
+    return df.drop_duplicates(EPISODE_KEY, keep="last").reset_index(drop=True) if len(df) else df
 
 
 def adamli_detection(evaluations: Path) -> pd.DataFrame:
@@ -268,12 +294,13 @@ def paired_markdown(pairs: pd.DataFrame, checkpoint: str, seed: str) -> list[str
     return lines
 
 
-def write_report(evaluations: Path, out: Path, header: list[str] = ()) -> str:
-    df = load_records(evaluations)
+def write_report(evaluations: Path, out: Path, header: list[str] = (), earlier: list[Path] = ()) -> str:
+    df = episodes(evaluations, earlier)
     if df.empty:
         raise FileNotFoundError(f"no episode records under {evaluations}/s<seed>/<checkpoint>/**/records")
     out.mkdir(parents=True, exist_ok=True)
     success, pairs, fir = success_table(df), paired_table(df), false_imagination(df)
+    df.sort_values(EPISODE_KEY).to_csv(out / "episodes.csv", index=False)
     success.to_csv(out / "table1.csv", index=False)
     pairs.to_csv(out / "paired.csv", index=False)
     fir.to_csv(out / "false_imagination.csv", index=False)
@@ -330,12 +357,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--command", default=None, help="the command that made the evaluations (for the header)")
     ap.add_argument("--wall-seconds", type=float, default=None)
     ap.add_argument("--note", action="append", default=[], help="a line for the header (e.g. the matched widths)")
+    ap.add_argument("--episodes", nargs="+", type=Path, default=[],
+                    help="earlier reports' episodes.csv, read beside the records (seeds whose records are elsewhere)")
     args = ap.parse_args(argv)
     copied = sorted(str(p.relative_to(args.evaluations)) for p in args.evaluations.glob("s*/last/*/same-as-best"))
     extra = ["- Last checkpoint = best checkpoint (the final check was the best): those cells are the best "
              f"cells' records, copied, not re-run: {', '.join(f'`{c}`' for c in copied)}"] if copied else []
+    if args.episodes:
+        extra.append(f"- Episodes read from earlier reports too: {', '.join(f'`{p}`' for p in args.episodes)}")
     header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note, extra)
-    print(write_report(args.evaluations, args.out, header))
+    print(write_report(args.evaluations, args.out, header, args.episodes))
 
 
 if __name__ == "__main__":
