@@ -257,3 +257,30 @@ def test_episodes_of_an_earlier_report_pair_with_new_records(tmp_path):
     with pytest.raises(FileNotFoundError, match="nowhere.csv: no such episodes file"):
         write_report(tmp_path / "later", tmp_path / "out", earlier=[tmp_path / "nowhere.csv"])
     assert not (tmp_path / "out").exists()
+
+
+def test_pooling_only_some_seeds_of_the_reports(tmp_path):
+    """--seeds pools the seeds that ran a model the others did not (a report holding seeds 0 and 1, BC-RSSM
+    on seed 0 only, and one holding seed 2): the comparison is pooled over seeds 0 and 2, seed 1 left out."""
+    from nostra.workflows.claims_pool import write_pooled
+
+    _scenario(tmp_path / "ev01", mli_mask=[True] * 10, lstm_mask=[False] * 10)
+    _write(tmp_path / "ev01", 0, "best", "mask", "rssm_li", [True] * 5 + [False] * 5)
+    _scenario(tmp_path / "ev2", mli_mask=[True] * 10, lstm_mask=[False] * 10)
+    shutil.rmtree(tmp_path / "ev2" / "s0")
+    shutil.move(tmp_path / "ev2" / "s1", tmp_path / "ev2" / "s2")
+    _write(tmp_path / "ev2", 2, "best", "mask", "rssm_li", [True] * 8 + [False] * 2)
+    write_report(tmp_path / "ev01", tmp_path / "r01")
+    write_report(tmp_path / "ev2", tmp_path / "r2")
+    text = write_pooled([tmp_path / "r01", tmp_path / "r2"], tmp_path / "p02", only=["0", "2"])
+    assert "- Training seeds: 0, 2" in text and "### Training seed 1" not in text
+    pairs = pd.read_csv(tmp_path / "p02" / "paired.csv", dtype={"seed": str})
+    r = pairs[(pairs.seed == "pooled") & (pairs.b == "rssm_li")].iloc[0]
+    assert r.n == 20 and r.a_only == 7 and r.b_only == 0
+    everything = write_pooled([tmp_path / "r01", tmp_path / "r2"], tmp_path / "p012")
+    assert "BC-RSSM + LI | mask | 20" not in everything  # seed 1 lacks the pair: not pooled over all three
+    with pytest.raises(ValueError, match="training seed.s. 5 in none of the reports; they hold 0, 1, 2"):
+        write_pooled([tmp_path / "r01", tmp_path / "r2"], tmp_path / "out", only=["0", "5"])
+    with pytest.raises(ValueError, match="1 training seed.s.; pooling needs two or more"):
+        write_pooled([tmp_path / "r01", tmp_path / "r2"], tmp_path / "out", only=["2"])
+    assert not (tmp_path / "out").exists()

@@ -59,9 +59,11 @@ def _read(path: Path, columns: list[str]) -> pd.DataFrame:
     return df[df.seed != claims.POOLED]
 
 
-def read_reports(reports: list[Path]) -> tuple[Kind, pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+def read_reports(reports: list[Path], only: list[str] | None = None
+                 ) -> tuple[Kind, pd.DataFrame, pd.DataFrame, pd.DataFrame]:
     """The reports' kind and the per-seed rows of their success table, paired.csv and (claims)
-    false_imagination.csv; a training seed found in two reports is an error (it would count twice)."""
+    false_imagination.csv, of the training seeds ``only`` (default: all); a training seed found in two
+    reports is an error (it would count twice)."""
     kinds = {r: kind_of(r) for r in reports}
     if len({k.name for k in kinds.values()}) > 1:
         raise ValueError("reports of different kinds: " + ", ".join(f"{r} ({k.name})" for r, k in kinds.items()))
@@ -77,6 +79,13 @@ def read_reports(reports: list[Path]) -> tuple[Kind, pd.DataFrame, pd.DataFrame,
         pairs.append(_read(r / "paired.csv", kind.pair + COUNTS))
         if (r / "false_imagination.csv").is_file():
             fir.append(_read(r / "false_imagination.csv", ["checkpoint", "seed", "mean", "count"]))
+    if only is not None:
+        if unknown := sorted(set(only) - set(owner), key=int):
+            raise ValueError(f"training seed(s) {', '.join(unknown)} in none of the reports; they hold "
+                             f"{', '.join(sorted(owner, key=int))}")
+        owner = {s: r for s, r in owner.items() if s in only}
+        keep = lambda dfs: [d[d.seed.isin(only)] for d in dfs]  # noqa: E731
+        success, pairs, fir = keep(success), keep(pairs), keep(fir)
     if len(owner) < 2:
         raise ValueError(f"{', '.join(map(str, reports))}: {len(owner)} training seed(s); pooling needs two or more")
     return kind, pd.concat(success), pd.concat(pairs), pd.concat(fir) if fir else pd.DataFrame()
@@ -159,8 +168,8 @@ def transfer_markdown(success: pd.DataFrame, pairs: pd.DataFrame, seeds: list[st
                    "![success per cell, pooled](transfer.png)", ""]
 
 
-def write_pooled(reports: list[Path], out: Path, header: list[str] = ()) -> str:
-    kind, success, pairs, fir = read_reports(reports)
+def write_pooled(reports: list[Path], out: Path, header: list[str] = (), only: list[str] | None = None) -> str:
+    kind, success, pairs, fir = read_reports(reports, only)
     success, pairs, fir = pool_success(success, kind), pool_pairs(pairs, kind), pool_false_imagination(fir)
     seeds = sorted(set(success.seed) - {claims.POOLED}, key=int)
     title = {"claims": "The paper's claims at CPU scale", "transfer": "Tables 4 and 5 at CPU scale"}[kind.name]
@@ -184,10 +193,12 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--reports", required=True, nargs="+", type=Path, help="report folders, one or more seeds each")
     ap.add_argument("--out", required=True, type=Path)
+    ap.add_argument("--seeds", nargs="+", default=None,
+                    help="pool only these training seeds (e.g. the ones that ran a model the others did not)")
     ap.add_argument("--command", default=None, help="the command that wrote this report (for the header)")
     args = ap.parse_args(argv)
     header = [f"- Command: `{args.command}`"] if args.command else []
-    print(write_pooled(args.reports, args.out, header))
+    print(write_pooled(args.reports, args.out, header, args.seeds))
 
 
 if __name__ == "__main__":
