@@ -284,3 +284,11 @@ def test_pooling_only_some_seeds_of_the_reports(tmp_path):
     with pytest.raises(ValueError, match="1 training seed.s.; pooling needs two or more"):
         write_pooled([tmp_path / "r01", tmp_path / "r2"], tmp_path / "out", only=["2"])
     assert not (tmp_path / "out").exists()
+
+
+def test_a_checkpoint_with_clean_cells_alone_says_there_is_nothing_to_pair(tmp_path):
+    _scenario(tmp_path, mli_mask=[True] * 10, lstm_mask=[False] * 10)
+    _write(tmp_path, 0, "last", "none", "nostra", [True] * 10)
+    last = write_report(tmp_path, tmp_path / "out").split("## Checkpoint: last")[1]
+    assert "None yet: no cell at this checkpoint has two variants to pair" in last
+    assert "| Comparison |" not in last and "| not measured |" in last

@@ -322,7 +322,9 @@ def write_report(evaluations: Path, out: Path, header: list[str] = (), earlier: 
         text += [f"## Checkpoint: {ck}", ""]
         for seed in seeds:
             text += [f"### {tables}, training seed {seed}", "", *success_markdown(success, ck, seed), ""]
-        text += ["### Paired comparisons (pooled)", "", *paired_markdown(pairs, ck, POOLED), "",
+        at = pairs[(pairs.checkpoint == ck) & (pairs.seed == POOLED)] if len(pairs) else pairs
+        text += ["### Paired comparisons (pooled)", "", *(paired_markdown(pairs, ck, POOLED) if len(at) else
+                 ["None yet: no cell at this checkpoint has two variants to pair (clean cells alone)."]), "",
                  "### Claims (pooled)", "", *verdicts(success, pairs, ck), ""]
         f = fir[(fir.checkpoint == ck) & (fir.seed == POOLED)]
         if len(f):
