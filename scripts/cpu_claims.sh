@@ -103,6 +103,6 @@ if [ "$CAPACITY" = matched ]; then  # the widths the runs were trained with, in 
   note=(--note "Capacity-matched: BC-LSTM and BC-RSSM at BC-NOSTRA's parameter count (${widths% }); BC-NOSTRA as configured")
 fi
 python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" "${note[@]}" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY NOISES=\"$NOISES\" CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/claims.md"
