@@ -254,6 +254,10 @@ def test_episodes_of_an_earlier_report_pair_with_new_records(tmp_path):
     (tmp_path / "bad.csv").write_text("seed,checkpoint,noise\n0,best,none\n")
     with pytest.raises(ValueError, match=r"bad.csv: missing column\(s\) variant, episode, success, imagined_share"):
         write_report(tmp_path / "later", tmp_path / "out", earlier=[tmp_path / "bad.csv"])
+    (tmp_path / "words.csv").write_text("seed,checkpoint,noise,variant,episode,success,imagined_share\n"
+                                        "zero,best,none,lstm,1000,True,\n")
+    with pytest.raises(ValueError, match="words.csv: seed and episode must be integers"):
+        write_report(tmp_path / "later", tmp_path / "out", earlier=[tmp_path / "words.csv"])
     with pytest.raises(FileNotFoundError, match="nowhere.csv: no such episodes file"):
         write_report(tmp_path / "later", tmp_path / "out", earlier=[tmp_path / "nowhere.csv"])
     assert not (tmp_path / "out").exists()

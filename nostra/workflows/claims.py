@@ -80,7 +80,10 @@ def read_episodes(paths: list[Path]) -> pd.DataFrame:
         if missing := [c for c in EPISODE_KEY + ["success", "imagined_share"] if c not in df.columns]:
             raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected "
                              f"{', '.join(EPISODE_KEY + ['success', 'imagined_share'])}")
-        frames.append(df.astype({"seed": int, "episode": int, "success": bool}))
+        try:
+            frames.append(df.astype({"seed": int, "episode": int, "success": bool}))
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{path}: seed and episode must be integers, success a boolean ({e})") from None
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
