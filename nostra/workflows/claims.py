@@ -68,6 +68,7 @@ def load_records(evaluations: Path) -> pd.DataFrame:
 
 
 EPISODE_KEY = ["seed", "checkpoint", "noise", "variant", "episode"]
+EPISODE_COLUMNS = EPISODE_KEY + ["success", "imagined_share"]  # episodes.csv, load_records' columns
 
 
 def read_episodes(paths: list[Path]) -> pd.DataFrame:
@@ -77,9 +78,8 @@ def read_episodes(paths: list[Path]) -> pd.DataFrame:
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such episodes file; a claims report writes <out>/episodes.csv")
         df = pd.read_csv(path)
-        if missing := [c for c in EPISODE_KEY + ["success", "imagined_share"] if c not in df.columns]:
-            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected "
-                             f"{', '.join(EPISODE_KEY + ['success', 'imagined_share'])}")
+        if missing := [c for c in EPISODE_COLUMNS if c not in df.columns]:
+            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected {', '.join(EPISODE_COLUMNS)}")
         try:
             frames.append(df.astype({"seed": int, "episode": int, "success": bool}))
         except (TypeError, ValueError) as e:
@@ -325,8 +325,8 @@ def write_report(evaluations: Path, out: Path, header: list[str] = (), earlier: 
         text += [f"## Checkpoint: {ck}", ""]
         for seed in seeds:
             text += [f"### {tables}, training seed {seed}", "", *success_markdown(success, ck, seed), ""]
-        at = pairs[(pairs.checkpoint == ck) & (pairs.seed == POOLED)] if len(pairs) else pairs
-        text += ["### Paired comparisons (pooled)", "", *(paired_markdown(pairs, ck, POOLED) if len(at) else
+        table = paired_markdown(pairs, ck, POOLED)  # two header lines, then a row per comparison
+        text += ["### Paired comparisons (pooled)", "", *(table if len(table) > 2 else
                  ["None yet: no cell at this checkpoint has two variants to pair (clean cells alone)."]), "",
                  "### Claims (pooled)", "", *verdicts(success, pairs, ck), ""]
         f = fir[(fir.checkpoint == ck) & (fir.seed == POOLED)]
