@@ -156,10 +156,12 @@ def test_adamli_detection_per_modality_and_gripper_phase(tmp_path):
     action = np.zeros((6, 7), np.float32)
     action[:, -1] = grip
     gripper = np.array([False, True, True, False, False, True])  # misses while closed, one false imagination
+    kl = np.array([1.0, 9.0, 7.0, 9.0, 7.0, 1.0])  # jumps by 8 into the window, then changes by 2 a step
     for k in range(2):
         np.savez_compressed(rec / f"nostra_adamli_seed{1000 + k}.npz", success=k == 0, steps=6, noise=noise,
-                            action=action, **{"imagined/robot0_gripper_qpos": gripper,
-                                              "imagined/robot0_eef_pos": noise})
+                            action=action, **{"imagined/robot0_gripper_qpos": gripper, "kl/robot0_gripper_qpos": kl,
+                                              "imagined/robot0_eef_pos": noise,
+                                              "imagined/robot0_eef_quat": np.arange(6) == 4})  # opens late
         np.savez_compressed(rec / f"nostra_mli_seed{1000 + k}.npz", success=True, steps=6)
     from nostra.workflows.claims import adamli_detection
 
@@ -167,8 +169,12 @@ def test_adamli_detection_per_modality_and_gripper_phase(tmp_path):
     g = det.loc[("pooled", "robot0_gripper_qpos")]
     assert g.recall == 0.5 and g.recall_open == 1.0 and g.recall_closed == 0.0
     assert g.outside == 0.5 and det.loc[("0", "robot0_eef_pos")].recall == 1.0
+    assert g.opened_late == 0.0 and g.closed_early == 1.0 and g.kl_jump == 8.0 and g.kl_swing == 2.0
+    e = det.loc[("pooled", "robot0_eef_pos")]  # imagined over the whole window, no KL recorded
+    assert e.opened_late == 0.0 and e.closed_early == 0.0 and np.isnan(e.kl_jump)
+    assert det.loc[("pooled", "robot0_eef_quat")].opened_late == 1.0
     report = write_report(tmp_path, tmp_path / "out")
-    assert "| proprio_zero | robot0_gripper_qpos | yes | 50% | 100% | 0% | 50% |" in report
+    assert "| proprio_zero | robot0_gripper_qpos | yes | 50% | 100% | 0% | 50% | 0% | 100% | 8 / 2 |" in report
     assert "| BC-NOSTRA + AdaMLI | 50 [" in report and "| proprio_zero |" in report.split("### Paired")[1]
     assert (tmp_path / "out" / "adamli_detection.csv").is_file()
 

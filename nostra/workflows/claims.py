@@ -93,11 +93,41 @@ def episodes(evaluations: Path, earlier: list[Path] = ()) -> pd.DataFrame:
     return df.drop_duplicates(EPISODE_KEY, keep="last").reset_index(drop=True) if len(df) else df
 
 
+def _windows(noisy: np.ndarray) -> list[tuple[int, int]]:
+    """The noise windows of one episode: [start, end) of each run of noisy steps."""
+    edges = np.flatnonzero(np.diff(np.r_[0, noisy.astype(int), 0]))
+    return list(zip(edges[::2], edges[1::2]))
+
+
+LATE = 3  # a window counts as opened late when none of its first LATE steps was imagined
+
+
+def _switching(imagined: np.ndarray, noisy: np.ndarray, kl: np.ndarray | None) -> dict:
+    """How AdaMLI's switch behaved over one episode's windows: opened late, switched back before the window
+    ended, and the KL it decided on (the jump into each window, the step-to-step change inside them)."""
+    out = dict(windows=0, late=0, early=0, jump=0.0, jumps=0, swing=0.0, swings=0)
+    for a, b in _windows(noisy):
+        w = imagined[a:b]
+        out["windows"] += 1
+        out["late"] += int(not w[:LATE].any())
+        out["early"] += int((w[:-1] & ~w[1:]).any())
+        if kl is not None:
+            if a > 0:
+                out["jump"] += float(kl[a] - kl[a - 1])
+                out["jumps"] += 1
+            out["swing"] += float(np.abs(np.diff(kl[a:b])).sum())
+            out["swings"] += b - a - 1
+    return out
+
+
 def adamli_detection(evaluations: Path) -> pd.DataFrame:
     """AdaMLI in closed loop, per (checkpoint, seed, noise, modality): the share of the noise windows' steps
     on which it imagined the modality (its recall), split by whether the previous action commanded the
-    gripper closed (a zeroed gripper reading looks like a closed gripper), and the share of steps outside
-    the windows (every step of a clean episode) on which it imagined it anyway."""
+    gripper closed (a zeroed gripper reading looks like a closed gripper), the share of steps outside
+    the windows (every step of a clean episode) on which it imagined it anyway, and per window whether
+    it opened late or switched back before the window ended, with the modality's KL jump into the
+    window and its mean step-to-step change inside (a KL that swings as much as it jumps defeats the
+    thresholds, which compare a change with the recent changes)."""
     steps = {}
     for f in sorted(evaluations.glob("s*/*/**/records/*/*/nostra_adamli_seed*.npz")):
         with np.load(f) as z:
@@ -107,21 +137,30 @@ def adamli_detection(evaluations: Path) -> pd.DataFrame:
             for k in (k for k in z.files if k.startswith("imagined/")):  # a cell evaluated twice: the later wins
                 key = (*_cell_of(f, evaluations), k[9:], f.stem)
                 imagined = z[k][:n].astype(bool)
-                steps[key] = (imagined, noisy[: len(imagined)], closed[: len(imagined)])
+                m = len(imagined)
+                kl = z[f"kl/{k[9:]}"][:m] if f"kl/{k[9:]}" in z.files else None
+                steps[key] = (imagined, noisy[:m], closed[:m], kl)
     rows = []
-    for (seed, ck, noise, modality, _), (imagined, noisy, closed) in steps.items():
+    for (seed, ck, noise, modality, _), (imagined, noisy, closed, kl) in steps.items():
         for sd in (str(seed), POOLED):
             rows.append({"checkpoint": ck, "seed": sd, "noise": noise, "modality": modality,
                          "noisy": noisy.sum(), "hit": (imagined & noisy).sum(),
                          "noisy_open": (noisy & ~closed).sum(), "hit_open": (imagined & noisy & ~closed).sum(),
                          "noisy_closed": (noisy & closed).sum(), "hit_closed": (imagined & noisy & closed).sum(),
-                         "clean": (~noisy).sum(), "false": (imagined & ~noisy).sum()})
+                         "clean": (~noisy).sum(), "false": (imagined & ~noisy).sum(),
+                         **_switching(imagined, noisy, kl)})
     if not rows:
         return pd.DataFrame()
     t = pd.DataFrame(rows).groupby(["checkpoint", "seed", "noise", "modality"]).sum().reset_index()
     ratio = lambda a, b: t[a] / t[b].where(t[b] > 0)  # noqa: E731
     return t.assign(recall=ratio("hit", "noisy"), recall_open=ratio("hit_open", "noisy_open"),
-                    recall_closed=ratio("hit_closed", "noisy_closed"), outside=ratio("false", "clean"))
+                    recall_closed=ratio("hit_closed", "noisy_closed"), outside=ratio("false", "clean"),
+                    opened_late=ratio("late", "windows"), closed_early=ratio("early", "windows"),
+                    kl_jump=ratio("jump", "jumps"), kl_swing=ratio("swing", "swings"))
+
+
+def _nats(x: float) -> str:
+    return "–" if pd.isna(x) else f"{x:.0f}"
 
 
 def detection_markdown(det: pd.DataFrame, checkpoint: str) -> list[str]:
@@ -132,11 +171,14 @@ def detection_markdown(det: pd.DataFrame, checkpoint: str) -> list[str]:
         return []
     order = {n: i for i, n in enumerate(NOISE_ORDER)}
     lines = ["| noise | modality | corrupted by it | imagined in the windows | gripper open | gripper closed "
-             "| imagined outside them |", "|---|---|---|---|---|---|---|"]
+             "| imagined outside them | windows opened late | switched back inside | KL jump in / step change "
+             "inside (nats) |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(d.itertuples(), key=lambda r: (order.get(r.noise, len(order)), r.noise, r.modality)):
         hit = r.modality in NoiseSchedule(r.noise, []).keys
+        window = (f"{_pct(r.opened_late)} | {_pct(r.closed_early)} | {_nats(r.kl_jump)} / {_nats(r.kl_swing)}"
+                  if hit else "– | – | –")
         lines.append(f"| {r.noise} | {r.modality} | {'yes' if hit else 'no'} | {_pct(r.recall)} | {_pct(r.recall_open)} "
-                     f"| {_pct(r.recall_closed)} | {_pct(r.outside)} |")
+                     f"| {_pct(r.recall_closed)} | {_pct(r.outside)} | {window} |")
     return lines
 
 
@@ -337,7 +379,12 @@ def write_report(evaluations: Path, out: Path, header: list[str] = (), earlier: 
             text += ["### AdaMLI's imagination per modality in closed loop (pooled)", "",
                      "The share of the noise windows' steps on which AdaMLI imagined each modality (its recall where "
                      "the noise corrupts that modality), split by the gripper command of the previous action, and the "
-                     "share of the other steps (every step of a clean episode) on which it imagined it anyway.",
+                     "share of the other steps (every step of a clean episode) on which it imagined it anyway; where "
+                     f"the noise corrupts the modality, the share of windows it did not imagine in their first {LATE} "
+                     "steps (opened late) or stopped imagining before they ended (switched back inside), and its KL "
+                     "jump into a window beside its mean step-to-step change inside one: AdaMLI switches back when "
+                     "the KL drops by f_c times its recent changes, so a KL that swings as much as it jumps ends "
+                     "imagination before the noise does.",
                      "", *lines, ""]
     (out / "claims.md").write_text("\n".join(text))
     return "\n".join(text)
