@@ -122,3 +122,28 @@ def test_a_sweep_without_the_papers_setting_is_paired_with_make_cpu_claims_cells
         main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out2"), "--no-figures",
               "--rollouts", str(tmp_path / "rollouts"), "--reference", str(tmp_path / "nowhere")])
     assert not (tmp_path / "out2").exists()  # checked before anything is written
+
+
+def test_sweep_rollouts_say_how_adamli_switched_beside_the_papers_cells(tmp_path):
+    """Per setting and rollout noise, the windows AdaMLI switched back inside; the paper's setting comes
+    from make cpu-claims' AdaMLI records of the same checkpoint (named s<seed>-fo20-fc3)."""
+    import numpy as np
+
+    _analysis(tmp_path / "runs", "s2-fo20-fc6/mask", "mask", "a.ckpt", {"cam": 1.0}, adamli={"f_o": 20.0, "f_c": 6.0})
+    noise = np.array([False, False, True, True, True, True, False])
+    kl = np.array([1.0, 1.0, 30.0, 10.0, 30.0, 10.0, 1.0])  # the KL swings inside the window as much as it jumps
+    def record(folder, k, imagined):
+        folder.mkdir(parents=True, exist_ok=True)
+        np.savez(folder / f"nostra_adamli_seed{1000 + k}.npz", success=True, steps=7, noise=noise,
+                 action=np.zeros((7, 7)), **{"imagined/agentview_image": np.array(imagined, bool),
+                                             "kl/agentview_image": kl})
+    for k in range(2):
+        record(tmp_path / "rollouts/s2-fo20-fc6/cam_jitter/records/LiftD1/cam_jitter", k, [0, 0, 1, 1, 1, 1, 1])
+        record(tmp_path / "evaluate/liftd1/s2/best/cam_jitter/cell/records/LiftD1/cam_jitter", k, [0, 0, 1, 0, 0, 0, 0])
+    main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--no-figures",
+          "--rollouts", str(tmp_path / "rollouts"), "--reference", str(tmp_path / "evaluate/liftd1/s2/best")])
+    sw = pd.read_csv(tmp_path / "out/adamli_switching.csv").set_index("setting")
+    assert sw.loc["s2-fo20-fc3", "closed_early"] == 1.0 and sw.loc["s2-fo20-fc6", "closed_early"] == 0.0
+    assert sw.loc["s2-fo20-fc6", "outside"] == 1 / 3 and sw.loc["s2-fo20-fc6", "kl_swing"] == 20.0
+    text = (tmp_path / "out/offline.md").read_text()
+    assert "| s2-fo20-fc3 | cam_jitter | agentview_image | 25% | 0% | 0% | 100% | 29 / 20 |" in text

@@ -48,7 +48,7 @@ def _cell_of(f: Path, evaluations: Path) -> tuple[int, str, str]:
     return int(seed_dir.name[1:]), f.relative_to(seed_dir).parts[0], f.parent.name
 
 
-def _pct(x: float) -> str:
+def percent(x: float) -> str:
     return "–" if np.isnan(x) else f"{100 * x:.0f}%"
 
 
@@ -120,6 +120,40 @@ def _switching(imagined: np.ndarray, noisy: np.ndarray, kl: np.ndarray | None) -
     return out
 
 
+def episode_imagination(f: Path) -> dict[str, dict]:
+    """One AdaMLI episode record's imagination counts per modality: steps in and outside the noise windows
+    and how many of them it imagined (inside: split by the previous action's gripper command), and the
+    window switching of ``_switching``."""
+    with np.load(f) as z:
+        if not any(k.startswith("imagined/") for k in z.files):
+            return {}
+        n = int(z["steps"])
+        noisy = z["noise"][:n] if "noise" in z.files else np.zeros(n, bool)
+        closed = np.r_[False, z["action"][: n - 1, -1] > 0] if "action" in z.files else np.zeros(n, bool)
+        out = {}
+        for k in (k for k in z.files if k.startswith("imagined/")):
+            imagined = z[k][:n].astype(bool)
+            m = len(imagined)
+            kl = z[f"kl/{k[9:]}"][:m] if f"kl/{k[9:]}" in z.files else None
+            noisy_m, closed_m = noisy[:m], closed[:m]
+            out[k[9:]] = {"noisy": noisy_m.sum(), "hit": (imagined & noisy_m).sum(),
+                          "noisy_open": (noisy_m & ~closed_m).sum(), "hit_open": (imagined & noisy_m & ~closed_m).sum(),
+                          "noisy_closed": (noisy_m & closed_m).sum(), "hit_closed": (imagined & noisy_m & closed_m).sum(),
+                          "clean": (~noisy_m).sum(), "false": (imagined & ~noisy_m).sum(),
+                          **_switching(imagined, noisy_m, kl)}
+    return out
+
+
+def imagination_ratios(t: pd.DataFrame) -> pd.DataFrame:
+    """Summed episode_imagination counts -> recall (inside the windows, gripper open / closed), imagination
+    outside them, windows opened late and switched back inside, the KL jump in and step change inside."""
+    ratio = lambda a, b: t[a] / t[b].where(t[b] > 0)  # noqa: E731
+    return t.assign(recall=ratio("hit", "noisy"), recall_open=ratio("hit_open", "noisy_open"),
+                    recall_closed=ratio("hit_closed", "noisy_closed"), outside=ratio("false", "clean"),
+                    opened_late=ratio("late", "windows"), closed_early=ratio("early", "windows"),
+                    kl_jump=ratio("jump", "jumps"), kl_swing=ratio("swing", "swings"))
+
+
 def adamli_detection(evaluations: Path) -> pd.DataFrame:
     """AdaMLI in closed loop, per (checkpoint, seed, noise, modality): the share of the noise windows' steps
     on which it imagined the modality (its recall), split by whether the previous action commanded the
@@ -128,38 +162,18 @@ def adamli_detection(evaluations: Path) -> pd.DataFrame:
     it opened late or switched back before the window ended, with the modality's KL jump into the
     window and its mean step-to-step change inside (a KL that swings as much as it jumps defeats the
     thresholds, which compare a change with the recent changes)."""
-    steps = {}
+    counts = {}
     for f in sorted(evaluations.glob("s*/*/**/records/*/*/nostra_adamli_seed*.npz")):
-        with np.load(f) as z:
-            n = int(z["steps"])
-            noisy = z["noise"][:n] if "noise" in z.files else np.zeros(n, bool)
-            closed = np.r_[False, z["action"][: n - 1, -1] > 0] if "action" in z.files else np.zeros(n, bool)
-            for k in (k for k in z.files if k.startswith("imagined/")):  # a cell evaluated twice: the later wins
-                key = (*_cell_of(f, evaluations), k[9:], f.stem)
-                imagined = z[k][:n].astype(bool)
-                m = len(imagined)
-                kl = z[f"kl/{k[9:]}"][:m] if f"kl/{k[9:]}" in z.files else None
-                steps[key] = (imagined, noisy[:m], closed[:m], kl)
-    rows = []
-    for (seed, ck, noise, modality, _), (imagined, noisy, closed, kl) in steps.items():
-        for sd in (str(seed), POOLED):
-            rows.append({"checkpoint": ck, "seed": sd, "noise": noise, "modality": modality,
-                         "noisy": noisy.sum(), "hit": (imagined & noisy).sum(),
-                         "noisy_open": (noisy & ~closed).sum(), "hit_open": (imagined & noisy & ~closed).sum(),
-                         "noisy_closed": (noisy & closed).sum(), "hit_closed": (imagined & noisy & closed).sum(),
-                         "clean": (~noisy).sum(), "false": (imagined & ~noisy).sum(),
-                         **_switching(imagined, noisy, kl)})
+        for modality, c in episode_imagination(f).items():  # a cell evaluated twice: the later wins
+            counts[(*_cell_of(f, evaluations), modality, f.stem)] = c
+    rows = [{"checkpoint": ck, "seed": sd, "noise": noise, "modality": modality, **c}
+            for (seed, ck, noise, modality, _), c in counts.items() for sd in (str(seed), POOLED)]
     if not rows:
         return pd.DataFrame()
-    t = pd.DataFrame(rows).groupby(["checkpoint", "seed", "noise", "modality"]).sum().reset_index()
-    ratio = lambda a, b: t[a] / t[b].where(t[b] > 0)  # noqa: E731
-    return t.assign(recall=ratio("hit", "noisy"), recall_open=ratio("hit_open", "noisy_open"),
-                    recall_closed=ratio("hit_closed", "noisy_closed"), outside=ratio("false", "clean"),
-                    opened_late=ratio("late", "windows"), closed_early=ratio("early", "windows"),
-                    kl_jump=ratio("jump", "jumps"), kl_swing=ratio("swing", "swings"))
+    return imagination_ratios(pd.DataFrame(rows).groupby(["checkpoint", "seed", "noise", "modality"]).sum().reset_index())
 
 
-def _nats(x: float) -> str:
+def nats_cell(x: float) -> str:
     return "–" if pd.isna(x) else f"{x:.0f}"
 
 
@@ -175,10 +189,10 @@ def detection_markdown(det: pd.DataFrame, checkpoint: str) -> list[str]:
              "inside (nats) |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(d.itertuples(), key=lambda r: (order.get(r.noise, len(order)), r.noise, r.modality)):
         hit = r.modality in NoiseSchedule(r.noise, []).keys
-        window = (f"{_pct(r.opened_late)} | {_pct(r.closed_early)} | {_nats(r.kl_jump)} / {_nats(r.kl_swing)}"
+        window = (f"{percent(r.opened_late)} | {percent(r.closed_early)} | {nats_cell(r.kl_jump)} / {nats_cell(r.kl_swing)}"
                   if hit else "– | – | –")
-        lines.append(f"| {r.noise} | {r.modality} | {'yes' if hit else 'no'} | {_pct(r.recall)} | {_pct(r.recall_open)} "
-                     f"| {_pct(r.recall_closed)} | {_pct(r.outside)} | {window} |")
+        lines.append(f"| {r.noise} | {r.modality} | {'yes' if hit else 'no'} | {percent(r.recall)} | {percent(r.recall_open)} "
+                     f"| {percent(r.recall_closed)} | {percent(r.outside)} | {window} |")
     return lines
 
 
@@ -264,31 +278,31 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
 
     def within(a: str, noise: str) -> tuple[str, bool, list]:  # a under noise within 10 points of clean NOSTRA
         return (f"{LABELS[a]} under {noise} within {WITHIN:.0%} of its clean success "
-                f"({_pct(rate(a, noise))} vs {_pct(rate('nostra', 'none'))})",
+                f"({percent(rate(a, noise))} vs {percent(rate('nostra', 'none'))})",
                 rate("nostra", "none") - rate(a, noise) <= WITHIN, [rate("nostra", "none"), rate(a, noise)])
 
     def hurts(noise: str) -> tuple[str, bool, list]:
-        return (f"{noise} hurts closed-loop BC-NOSTRA by >= {WITHIN:.0%} ({_pct(rate('nostra', 'none'))} -> "
-                f"{_pct(rate('nostra', noise))})", rate("nostra", "none") - rate("nostra", noise) >= WITHIN,
+        return (f"{noise} hurts closed-loop BC-NOSTRA by >= {WITHIN:.0%} ({percent(rate('nostra', 'none'))} -> "
+                f"{percent(rate('nostra', noise))})", rate("nostra", "none") - rate("nostra", noise) >= WITHIN,
                 [rate("nostra", "none"), rate("nostra", noise)])
 
     def bar(text: str, values: list, test) -> tuple[str, bool, list]:  # over the models that ran (a NOSTRA-only run)
         ran = [v for v in values if not np.isnan(v)] or [np.nan]
         return text, test(ran), ran
 
-    base = [bar(f"closed-loop clean >= {CLEAN_MIN:.0%} (BC-LSTM {_pct(rate('lstm', 'none'))}, BC-NOSTRA "
-                f"{_pct(rate('nostra', 'none'))})", [rate("lstm", "none"), rate("nostra", "none")],
+    base = [bar(f"closed-loop clean >= {CLEAN_MIN:.0%} (BC-LSTM {percent(rate('lstm', 'none'))}, BC-NOSTRA "
+                f"{percent(rate('nostra', 'none'))})", [rate("lstm", "none"), rate("nostra", "none")],
                 lambda xs: min(xs) >= CLEAN_MIN),
-            bar(f"blind control <= {BLIND_MAX:.0%} (BC-LSTM {_pct(rate('lstm', 'blind'))}, MLI "
-                f"{_pct(rate('nostra_mli', 'blind'))})", [rate("lstm", "blind"), rate("nostra_mli", "blind")],
+            bar(f"blind control <= {BLIND_MAX:.0%} (BC-LSTM {percent(rate('lstm', 'blind'))}, MLI "
+                f"{percent(rate('nostra_mli', 'blind'))})", [rate("lstm", "blind"), rate("nostra_mli", "blind")],
                 lambda xs: max(xs) <= BLIND_MAX)]
     # (noise, its claims): Table 1's unless only Table 2 ran (OBS=rgbd), then Table 2's once any of its cells exist
     ran = set(s.index.get_level_values("noise"))
     claims = []
     if not ran & set(TABLE2_NOISES) or ran & set(TABLE1_NOISES[1:]):
         claims = [("mask", [within("nostra_mli", "mask"), above("nostra_mli", "mask"),
-                            (f"AdaMLI within {WITHIN:.0%} of oracle MLI under mask ({_pct(rate('nostra_adamli', 'mask'))} "
-                             f"vs {_pct(rate('nostra_mli', 'mask'))})",
+                            (f"AdaMLI within {WITHIN:.0%} of oracle MLI under mask ({percent(rate('nostra_adamli', 'mask'))} "
+                             f"vs {percent(rate('nostra_mli', 'mask'))})",
                              abs(rate("nostra_adamli", "mask") - rate("nostra_mli", "mask")) <= WITHIN,
                              [rate("nostra_adamli", "mask"), rate("nostra_mli", "mask")])])]
     if ran & set(TABLE2_NOISES):

@@ -155,6 +155,54 @@ def paired_thresholds(sweep: pd.DataFrame, root: Path, reference: Path | None = 
     return pd.DataFrame(rows).sort_values(["seed", *varied, "noise"], kind="stable").reset_index(drop=True)
 
 
+def switching(root: Path, reference: Path | None = None) -> pd.DataFrame:
+    """BC-NOSTRA + AdaMLI's imagination in the sweep's rollouts per (setting, rollout noise, modality):
+    claims.imagination_ratios of its episode records under ``root/<setting>/``; with ``reference`` (make
+    cpu-claims' records of the same checkpoint, <evaluate>/<task>/s<seed>/<checkpoint>) its AdaMLI cells
+    join as the paper's setting s<seed>-fo<f_o>-fc<f_c>, unless the sweep ran that setting itself."""
+    from nostra.policies.imagination import AdaMLIConfig
+    from nostra.workflows.claims import episode_imagination, imagination_ratios
+
+    def counts(files, setting_of) -> dict:
+        return {(setting_of(f), f.parent.name, m, f.stem): c  # a cell evaluated twice: the later wins
+                for f in sorted(files) for m, c in episode_imagination(f).items()}
+
+    cfg, found = AdaMLIConfig(), {}
+    if reference is not None:
+        paper = f"{reference.parent.name}-fo{cfg.f_o:g}-fc{cfg.f_c:g}"
+        found = counts(reference.glob("**/records/*/*/nostra_adamli_seed*.npz"), lambda f: paper)
+    found |= counts(root.glob("*/**/records/*/*/nostra_adamli_seed*.npz"), lambda f: f.relative_to(root).parts[0])
+    if not found:
+        return pd.DataFrame()
+    rows = [{"setting": st, "noise": noise, "modality": m, **c} for (st, noise, m, _), c in found.items()]
+    return imagination_ratios(pd.DataFrame(rows).groupby(["setting", "noise", "modality"]).sum().reset_index())
+
+
+def switching_markdown(sw: pd.DataFrame) -> list[str]:
+    """Per setting and rollout noise, the modalities the noise corrupts (every modality on clean episodes)."""
+    from nostra.noise import NOISES, NoiseSchedule
+    from nostra.workflows.claims import nats_cell, percent
+
+    lines = ["## AdaMLI's switching in closed loop", "",
+             "BC-NOSTRA + AdaMLI's rollouts per setting (`adamli_switching.csv`): for each modality the noise "
+             "corrupts, the share of the windows' steps it imagined and of the other steps, the share of windows "
+             "it did not imagine in their first 3 steps (opened late) or stopped imagining before they ended "
+             "(switched back inside), and the KL jump into a window beside the KL's mean step-to-step change "
+             "inside (nats); on clean episodes, the share of steps each modality was imagined.", "",
+             "| setting | rollout noise | modality | imagined in the windows | imagined outside them | windows opened "
+             "late | switched back inside | KL jump in / step change inside |", "|---|---|---|---|---|---|---|---|"]
+    order = lambda n: NOISES.index(n) if n in NOISES else len(NOISES)  # noqa: E731
+    for r in sorted(sw.itertuples(), key=lambda r: (r.setting, order(r.noise), r.modality)):
+        corrupted = NoiseSchedule(r.noise, []).keys
+        if r.noise != "none" and r.modality not in corrupted:
+            continue
+        cells = (f"– | {percent(r.outside)} | – | – | –" if r.noise == "none" else
+                 f"{percent(r.recall)} | {percent(r.outside)} | {percent(r.opened_late)} | {percent(r.closed_early)} | "
+                 f"{nats_cell(r.kl_jump)} / {nats_cell(r.kl_swing)}")
+        lines.append(f"| {r.setting} | {r.noise} | {r.modality} | {cells} |")
+    return lines + [""]
+
+
 def _varied(sweep: pd.DataFrame) -> list[str]:
     return [c for c in sweep.columns if c not in ("analysis", "noise", "precision", "recall", "false_imagination")
             and not c.startswith("success_")]
@@ -320,8 +368,11 @@ def main(argv: list[str] | None = None) -> None:
         sweep_figure(sweep, args.out / "adamli_sweep.png")
     if len(pairs):
         pairs.to_csv(args.out / "adamli_paired.csv", index=False)
-    (args.out / "offline.md").write_text(markdown(kl, detect, command, figures, sweep, pairs, changes, traces,
-                                                     demos_word(analyses), batches, pooled))
+    sw = switching(args.rollouts, args.reference) if args.rollouts is not None else pd.DataFrame()
+    if len(sw):
+        sw.to_csv(args.out / "adamli_switching.csv", index=False)
+    text = markdown(kl, detect, command, figures, sweep, pairs, changes, traces, demos_word(analyses), batches, pooled)
+    (args.out / "offline.md").write_text(text + ("\n\n" + "\n".join(switching_markdown(sw)) if len(sw) else ""))
     print(args.out / "offline.md")
 
 
