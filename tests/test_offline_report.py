@@ -118,6 +118,9 @@ def test_a_sweep_without_the_papers_setting_is_paired_with_make_cpu_claims_cells
     assert list(pairs["diff"]) == [0.75, 0.25, 0.0, 1.0] and list(pairs.a_only) == [3, 1, 0, 4]
     text = (tmp_path / "out/offline.md").read_text()
     assert "| 1 | 6 | all | paper's thresholds | 4 | +75 [+25, +100] | 3 / 0 | 0.25 |" in text
+    sweep = pd.read_csv(tmp_path / "out/adamli_sweep.csv").set_index("analysis")  # the paper's row: the claims' cell
+    assert sweep.loc["s1-fo20-fc3/all", "success_all"] == 0.25 and sweep.loc["s1-fo20-fc6/all", "success_all"] == 1.0
+    assert sweep.loc["s0-fo20-fc6/all", "success_all"] == 0.5  # seed 0 has no reference: its own cell only
     with pytest.raises(FileNotFoundError, match="--reference .*nowhere: no such folder"):
         main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out2"), "--no-figures",
               "--rollouts", str(tmp_path / "rollouts"), "--reference", str(tmp_path / "nowhere")])

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -76,14 +77,34 @@ def detection_table(analyses: list[dict]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def closed_loop(root: Path) -> pd.DataFrame:
+def paper_setting(reference: Path) -> str:
+    """The sweep's name for the paper's thresholds on the reference's training seed: s<seed>-fo20-fc3."""
+    from nostra.policies.imagination import AdaMLIConfig
+
+    cfg = AdaMLIConfig()
+    return f"{reference.parent.name}-fo{cfg.f_o:g}-fc{cfg.f_c:g}"
+
+
+def closed_loop(root: Path, reference: Path | None = None) -> pd.DataFrame:
     """Rollout success per threshold setting and noise, from the episode records under
     ``root/<setting>/`` (the sweep's rollouts of BC-NOSTRA + AdaMLI): setting, noise, k, n, rate and
-    its 95% Wilson interval."""
+    its 95% Wilson interval. With ``reference`` (make cpu-claims' records of the same checkpoint), its
+    AdaMLI cells are the paper's setting where the sweep did not run that setting under that noise."""
+    from nostra.workflows.evaluation import wilson
     from nostra.workflows.sweep_report import success
 
     s = success(root)
-    return s[s.variant == "nostra_adamli"].drop(columns="variant").reset_index(drop=True)
+    s = s[s.variant == "nostra_adamli"].drop(columns="variant").reset_index(drop=True)
+    if reference is None:
+        return s
+    paper, rows = paper_setting(reference), []
+    have = set(zip(s.setting, s.noise))
+    for (noise, variant), won in reference_cells(reference).items():
+        if variant == "nostra_adamli" and (paper, noise) not in have:
+            k, n = int(won.sum()), len(won)
+            low, high = wilson(k, n)
+            rows.append({"setting": paper, "noise": noise, "k": k, "n": n, "rate": k / n, "ci_low": low, "ci_high": high})
+    return pd.concat([s, pd.DataFrame(rows)], ignore_index=True) if rows else s
 
 
 def with_success(sweep: pd.DataFrame, rollouts: pd.DataFrame) -> pd.DataFrame:
@@ -160,22 +181,26 @@ def switching(root: Path, reference: Path | None = None) -> pd.DataFrame:
     claims.imagination_ratios of its episode records under ``root/<setting>/``; with ``reference`` (make
     cpu-claims' records of the same checkpoint, <evaluate>/<task>/s<seed>/<checkpoint>) its AdaMLI cells
     join as the paper's setting s<seed>-fo<f_o>-fc<f_c>, unless the sweep ran that setting itself."""
-    from nostra.policies.imagination import AdaMLIConfig
     from nostra.workflows.claims import episode_imagination, imagination_ratios
 
     def counts(files, setting_of) -> dict:
         return {(setting_of(f), f.parent.name, m, f.stem): c  # a cell evaluated twice: the later wins
                 for f in sorted(files) for m, c in episode_imagination(f).items()}
 
-    cfg, found = AdaMLIConfig(), {}
+    found = {}
     if reference is not None:
-        paper = f"{reference.parent.name}-fo{cfg.f_o:g}-fc{cfg.f_c:g}"
+        paper = paper_setting(reference)
         found = counts(reference.glob("**/records/*/*/nostra_adamli_seed*.npz"), lambda f: paper)
     found |= counts(root.glob("*/**/records/*/*/nostra_adamli_seed*.npz"), lambda f: f.relative_to(root).parts[0])
     if not found:
         return pd.DataFrame()
     rows = [{"setting": st, "noise": noise, "modality": m, **c} for (st, noise, m, _), c in found.items()]
     return imagination_ratios(pd.DataFrame(rows).groupby(["setting", "noise", "modality"]).sum().reset_index())
+
+
+def _natural(name: str) -> list:
+    """Sort key that orders s2-fo20-fc3 before s2-fo20-fc12 (numbers compared as numbers)."""
+    return [float(t) if t.replace(".", "", 1).isdigit() else t for t in re.split(r"(\d+(?:\.\d+)?)", name)]
 
 
 def switching_markdown(sw: pd.DataFrame) -> list[str]:
@@ -192,7 +217,7 @@ def switching_markdown(sw: pd.DataFrame) -> list[str]:
              "| setting | rollout noise | modality | imagined in the windows | imagined outside them | windows opened "
              "late | switched back inside | KL jump in / step change inside |", "|---|---|---|---|---|---|---|---|"]
     order = lambda n: NOISES.index(n) if n in NOISES else len(NOISES)  # noqa: E731
-    for r in sorted(sw.itertuples(), key=lambda r: (r.setting, order(r.noise), r.modality)):
+    for r in sorted(sw.itertuples(), key=lambda r: (_natural(r.setting), order(r.noise), r.modality)):
         corrupted = NoiseSchedule(r.noise, []).keys
         if r.noise != "none" and r.modality not in corrupted:
             continue
@@ -362,7 +387,7 @@ def main(argv: list[str] | None = None) -> None:
     pairs = pd.DataFrame()
     if args.rollouts is not None:
         pairs = paired_thresholds(sweep, args.rollouts, args.reference)
-        sweep = with_success(sweep, closed_loop(args.rollouts))
+        sweep = with_success(sweep, closed_loop(args.rollouts, args.reference))
     if len(sweep):
         sweep.to_csv(args.out / "adamli_sweep.csv", index=False)
         sweep_figure(sweep, args.out / "adamli_sweep.png")
