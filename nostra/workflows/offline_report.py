@@ -206,12 +206,12 @@ def _natural(name: str) -> list:
 def switching_markdown(sw: pd.DataFrame) -> list[str]:
     """Per setting and rollout noise, the modalities the noise corrupts (every modality on clean episodes)."""
     from nostra.noise import NOISES, NoiseSchedule
-    from nostra.workflows.claims import nats_cell, percent
+    from nostra.workflows.claims import LATE, nats_cell, percent
 
     lines = ["## AdaMLI's switching in closed loop", "",
              "BC-NOSTRA + AdaMLI's rollouts per setting (`adamli_switching.csv`): for each modality the noise "
              "corrupts, the share of the windows' steps it imagined and of the other steps, the share of windows "
-             "it did not imagine in their first 3 steps (opened late) or stopped imagining before they ended "
+             f"it did not imagine in their first {LATE} steps (opened late) or stopped imagining before they ended "
              "(switched back inside), and the KL jump into a window beside the KL's mean step-to-step change "
              "inside (nats); on clean episodes, the share of steps each modality was imagined.", "",
              "| setting | rollout noise | modality | imagined in the windows | imagined outside them | windows opened "
