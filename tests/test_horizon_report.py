@@ -1,0 +1,75 @@
+"""Imagination over longer windows from episode records: success and the paired MLI - LI difference
+per window setting, each imagined path's drift from its own model's clean path, the task's windows
+read from the claims cells, and clear errors for a folder that is no window setting."""
+
+import numpy as np
+import pytest
+
+from nostra.workflows.horizon_report import drift_cm, load, parse_setting, summary, write_report
+
+
+def _write(folder, noise, variant, successes, windows=(), offset=0.0, steps=20):
+    rec = folder / "cell" / "records" / "LiftD1" / noise
+    rec.mkdir(parents=True, exist_ok=True)
+    noisy = np.zeros(steps, bool)
+    for a, b in windows:
+        noisy[a:b] = True
+    for k, s in enumerate(successes):
+        eef = np.zeros((steps, 3), np.float32)
+        eef[noisy, 0] = offset  # metres away from the clean path on the imagined steps
+        np.savez_compressed(rec / f"{variant}_seed{1000 + k}.npz", success=s, steps=steps, eef_pos=eef, noise=noisy)
+
+
+def _scenario(tmp_path):
+    ev, ref = tmp_path / "horizon", tmp_path / "claims"
+    for v in ("nostra", "rssm"):
+        _write(ref / "none", "none", v, [True] * 20)
+    _write(ref / "mask", "mask", "nostra_mli", [True] * 18 + [False] * 2, [(5, 10)], 0.01)
+    _write(ref / "mask", "mask", "rssm_li", [True] * 18 + [False] * 2, [(5, 10)], 0.01)
+    _write(ev / "5-20", "mask", "nostra_mli", [True] * 16 + [False] * 4, [(5, 20)], 0.02)
+    _write(ev / "5-20", "mask", "rssm_li", [True] * 4 + [False] * 16, [(5, 20)], 0.05)
+    return ev, ref
+
+
+def test_success_pairs_and_drift(tmp_path):
+    ev, ref = _scenario(tmp_path)
+    df = load(ev, ref, "5-10", "mask")
+    s = summary(df, horizon=20).set_index("setting")
+    assert list(s.index) == ["5-10", "5-20"]  # sorted by imagined steps: 5, 15
+    long = s.loc["5-20"]
+    assert long.nostra_mli_rate == 0.8 and long.rssm_li_rate == 0.2 and long.steps == 15
+    assert long.pair_diff == pytest.approx(0.6) and long.pair_a_only == 12 and long.pair_p == pytest.approx(2 * 0.5 ** 12)
+    assert long.nostra_mli_drift_cm == pytest.approx(2.0) and long.rssm_li_drift_cm == pytest.approx(5.0)
+    assert long.drift_diff_cm == pytest.approx(3.0)
+    assert s.loc["5-10"].pair_diff == 0
+
+    report = write_report(ev, tmp_path / "out", "mask", ref, "5-10", horizon=20)
+    assert "| [5, 20) | 15 | 80 [58, 92] | 20 [8, 42] | +60 [+40, +80] | 12 / 0 | 0.00049 | 2.0 | 5.0 |" in report
+    assert "by >= 10 points with p < 0.05: [5, 20)." in report
+    assert "The row [5, 10) is the task's windows" in report
+    assert (tmp_path / "out" / "horizon.png").stat().st_size > 10_000
+    assert (tmp_path / "out" / "horizon.csv").is_file() and (tmp_path / "out" / "episodes.csv").is_file()
+
+
+def test_drift_only_over_steps_both_reach(tmp_path):
+    _write(tmp_path / "a", "mask", "nostra_mli", [True], [(5, 20)], 0.03, steps=20)
+    _write(tmp_path / "b", "none", "nostra", [True], steps=8)  # the clean run ended (succeeded) at step 8
+    a = next((tmp_path / "a").glob("**/*.npz"))
+    b = next((tmp_path / "b").glob("**/*.npz"))
+    assert drift_cm(a, b) == pytest.approx(3.0)  # steps 5-7 only
+    assert np.isnan(drift_cm(a, None))
+
+
+def test_bad_settings(tmp_path):
+    with pytest.raises(ValueError, match="'15to65': expected start-end"):
+        parse_setting("15to65")
+    with pytest.raises(ValueError, match=r"\[\(65, 15\)\] must satisfy 0 < start < end"):
+        parse_setting("65-15")
+    ev, ref = _scenario(tmp_path)
+    with pytest.raises(FileNotFoundError, match="no records of nostra_mli, rssm_li under 'cam_jitter'"):
+        load(ev, None, None, "cam_jitter")
+    with pytest.raises(ValueError, match="--reference needs --reference-windows"):
+        load(ev, ref, None, "mask")
+    (ev / "long").mkdir()
+    with pytest.raises(ValueError, match="'long': expected start-end"):
+        load(ev, ref, "5-10", "mask")
