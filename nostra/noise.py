@@ -25,6 +25,7 @@ from nostra.policies.imagination import in_windows, window_mask
 # what the injectors corrupt: the simulator's modalities by kind (the observation contract)
 SIM = sim_observations()
 RGB_KEYS, DEPTH_KEYS, PROPRIO_KEYS = SIM.rgb_keys, SIM.depth_keys, SIM.lowdim_keys
+WRIST_KEY = "robot0_eye_in_hand_image"  # one of RGB_KEYS
 # never used by the generation knobs' defaults, so unseen in training unless configured there
 UNSEEN_TABLE_TEXTURE = "red-wood"
 
@@ -180,6 +181,7 @@ def _suite(name: str, params: dict) -> list[Injector]:
     return {
         "none": [],
         "mask": [rgb],
+        "wrist_mask": [Mask((WRIST_KEY,), mask)],  # one camera (the paper's real-robot occlusion, Table 6)
         "depth_mask": [depth],
         "cam_jitter": [CamJitter(params.get("jitter_std", 0.1))],
         "table_tex": [TableTexture(params.get("texture", UNSEEN_TABLE_TEXTURE))],
@@ -193,7 +195,7 @@ def _suite(name: str, params: dict) -> list[Injector]:
     }[name]
 
 
-NOISES = ("none", "mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero", "proprio_stuck", "rgb", "rgbd",
+NOISES = ("none", "mask", "wrist_mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero", "proprio_stuck", "rgb", "rgbd",
           "all", "blind", "clean_windows")
 WHOLE_EPISODE = ("blind",)  # noises that ignore the windows: active from the first step to the last
 

@@ -7,7 +7,8 @@
 # end-effector drift from its own clean run, beside the claims cells of the same checkpoint (the
 # task's windows; make cpu-claims must have run that seed's none and NOISE cells). Resumable: a
 # setting with records is kept.
-#   TASK=liftd1 SEED=2 WINDOWS="15-65;15-200;5-200" bash scripts/cpu_horizon.sh   # ~5 min a setting here
+#   TASK=liftd1 SEED=2 WINDOWS="15-65;15-200;5-200" bash scripts/cpu_horizon.sh   # ~4 min a setting here
+#   NOISE=wrist_mask WINDOWS="15-35,45-60;5-200" ...   # one camera lost: what per-modality imagination keeps
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -20,7 +21,7 @@ VARIANTS=${VARIANTS:-nostra_mli rssm_li}
 source scripts/cpu_setup.sh   # OBS -> PROFILE, RUNS, REPORTS
 start=$(date +%s)
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
-ROOT=$RUNS/evaluate/$TASK-horizon/s$SEED
+ROOT=$RUNS/evaluate/$TASK-horizon/s$SEED/$NOISE
 drop=$(for v in lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli; do
   case " $VARIANTS " in *" $v "*) ;; *) printf 'evaluate.variants.%s=null ' $v ;; esac; done)
 IFS=';' read -ra SETTINGS <<< "$WINDOWS"
@@ -33,7 +34,7 @@ for setting in "${SETTINGS[@]}"; do
     "evaluate.noises=[$NOISE]" evaluate.episodes=$EPISODES $drop "evaluate.windows={$NAME: $windows}" \
     evaluate.offline.enabled=false evaluate.out_dir=$out
 done
-OUT=${OUT:-$REPORTS/$TASK/horizon-s$SEED}
+OUT=${OUT:-$REPORTS/$TASK/horizon-$NOISE-s$SEED}
 TASK_WINDOWS=$(python -c "import yaml; w = yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows']; print(','.join(f'{a}-{b}' for a, b in w))")
 HORIZON=$(python - <<PY
 from hydra import compose, initialize_config_dir

@@ -221,6 +221,7 @@ def test_sim_rollout_is_the_old_rollout_loop(case):
 def test_observation_noises_run_on_recorded_observations():
     obs, _ = _data(0)
     obs = {k: v[0] for k, v in obs.items()}
+    obs["robot0_eye_in_hand_image"] = obs["agentview_image"].copy()  # a second camera, for wrist_mask
     for noise in NOISES:
         schedule = NoiseSchedule(noise, WINDOWS)
         if schedule.needs_env:
@@ -262,6 +263,21 @@ def test_oracle_keys():
     assert oracle_keys(NoiseSchedule("all", WINDOWS), ["agentview_image", "robot0_eef_pos", "vel"]) == \
         {"agentview_image", "robot0_eef_pos"}
     assert oracle_keys(NoiseSchedule("none", WINDOWS), ["agentview_image"]) == set()
+    cams = ["agentview_image", "robot0_eye_in_hand_image", "robot0_eef_pos"]
+    assert oracle_keys(NoiseSchedule("wrist_mask", WINDOWS), cams) == {"robot0_eye_in_hand_image"}  # one camera
+
+
+def test_wrist_mask_leaves_the_agent_view():
+    obs, _ = _data(0)
+    t = WINDOWS[0][0]
+    image = obs["agentview_image"][0][t]  # episode 0, step t
+    o = {"agentview_image": image, "robot0_eye_in_hand_image": image.copy()}
+    schedule = NoiseSchedule("wrist_mask", WINDOWS)
+    schedule.prepare(None, t, np.random.default_rng(0), image_size=SIZE)
+    seen = schedule.corrupt(o, t)
+    assert np.array_equal(seen["agentview_image"], o["agentview_image"])
+    black = (seen["robot0_eye_in_hand_image"] == 0).all(axis=-1).sum()
+    assert black == round(50 / 84 * SIZE) ** 2  # the paper's 50 px square at 84 px, scaled
 
 
 def test_engine_and_noise_need_no_simulator():

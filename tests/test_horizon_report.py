@@ -73,3 +73,12 @@ def test_bad_settings(tmp_path):
     (ev / "long").mkdir()
     with pytest.raises(ValueError, match="'long': expected start-end"):
         load(ev, ref, "5-10", "mask")
+
+
+def test_a_setting_run_here_wins_over_the_claims_cell(tmp_path):
+    ev, ref = _scenario(tmp_path)
+    _write(ev / "5-10", "mask", "nostra_mli", [False] * 20, [(5, 10)], 0.01)  # the task's windows, rerun here
+    df = load(ev, ref, "5-10", "mask")
+    mli = df[(df.setting == "5-10") & (df.variant == "nostra_mli")]
+    assert len(mli) == 20 and not mli.success.any()
+    assert not len(df[(df.setting == "5-10") & (df.variant == "rssm_li")])  # not mixed with the claims cell's

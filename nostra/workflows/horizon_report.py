@@ -13,9 +13,9 @@ bootstrap interval, McNemar exact p), and each variant's end-effector drift: the
 the imagined steps both episodes reach, between its path and its own model's clean path from the same
 initial state (the paper's Figure 4 as a number), with the paired LI - MLI difference (Wilcoxon).
 
-    python -m nostra.workflows.horizon_report --evaluations data/runs/cpu/evaluate/liftd1-horizon/s2 \
+    python -m nostra.workflows.horizon_report --evaluations data/runs/cpu/evaluate/liftd1-horizon/s2/mask \
         --reference data/runs/cpu/evaluate/liftd1/s2/best --reference-windows 15-35,45-60 \
-        --out reports/cpu/liftd1/horizon-s2
+        --out reports/cpu/liftd1/horizon-mask-s2
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ def load(evaluations: Path, reference: Path | None, reference_windows: str | Non
     if reference is not None:
         if not reference_windows:
             raise ValueError("--reference needs --reference-windows (the task's windows, e.g. 15-35,45-60)")
-        folders[reference_windows] = reference / noise
+        folders.setdefault(reference_windows, reference / noise)  # a setting run here wins over the claims cell
     for name in folders:
         parse_setting(name)
     cleans = {v: _records(reference / "none", "none", m) if reference else {} for v, m in CLEAN.items()}
@@ -198,7 +198,7 @@ def write_report(evaluations: Path, out: Path, noise: str = "mask", reference: P
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--evaluations", required=True, type=Path, help="<runs>/evaluate/<task>-horizon/s<seed>")
+    ap.add_argument("--evaluations", required=True, type=Path, help="<runs>/evaluate/<task>-horizon/s<seed>/<noise>")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--noise", default="mask")
     ap.add_argument("--reference", type=Path, default=None,
