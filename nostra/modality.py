@@ -65,6 +65,7 @@ def kind_of_key(key: str) -> str:
 
 # Keys other modules need by role, not as one of a set (spelled here only).
 FRONT_IMAGE = "agentview_image"   # the third-person view: videos, a format's single "image"
+WRIST_IMAGE = "robot0_eye_in_hand_image"  # the wrist camera: noise that occludes one camera
 EEF_POS = "robot0_eef_pos"        # the end effector's position, recorded beside the actions
 
 

@@ -19,13 +19,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nostra.modality import sim_observations
+from nostra.modality import WRIST_IMAGE, sim_observations
 from nostra.policies.imagination import in_windows, window_mask
 
 # what the injectors corrupt: the simulator's modalities by kind (the observation contract)
 SIM = sim_observations()
 RGB_KEYS, DEPTH_KEYS, PROPRIO_KEYS = SIM.rgb_keys, SIM.depth_keys, SIM.lowdim_keys
-WRIST_KEY = "robot0_eye_in_hand_image"  # one of RGB_KEYS
 # never used by the generation knobs' defaults, so unseen in training unless configured there
 UNSEEN_TABLE_TEXTURE = "red-wood"
 
@@ -181,7 +180,7 @@ def _suite(name: str, params: dict) -> list[Injector]:
     return {
         "none": [],
         "mask": [rgb],
-        "wrist_mask": [Mask((WRIST_KEY,), mask)],  # one camera (the paper's real-robot occlusion, Table 6)
+        "wrist_mask": [Mask((WRIST_IMAGE,), mask)],  # one camera (the paper's real-robot occlusion, Table 6)
         "depth_mask": [depth],
         "cam_jitter": [CamJitter(params.get("jitter_std", 0.1))],
         "table_tex": [TableTexture(params.get("texture", UNSEEN_TABLE_TEXTURE))],
