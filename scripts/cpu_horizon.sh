@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # Imagination over longer windows (issue 11: why BC-RSSM + LI loses nothing to BC-NOSTRA + MLI on
 # LiftD1): the oracle variants of one training seed's best checkpoints under NOISE, with the task's
-# windows replaced by each of WINDOWS (";"-separated settings of "start-end" windows, "," between
+# windows replaced by each of WINDOWS (";"-separated settings of "start-end" windows, "+" between
 # windows of one setting), EPISODES paired episodes each (the initial states of make cpu-claims).
 # Then nostra.workflows.horizon_report: success, the paired difference and each variant's
 # end-effector drift from its own clean run, beside the claims cells of the same checkpoint (the
 # task's windows; make cpu-claims must have run that seed's none and NOISE cells). Resumable: a
 # setting with records is kept.
 #   TASK=liftd1 SEED=2 WINDOWS="15-65;15-200;5-200" bash scripts/cpu_horizon.sh   # ~4 min a setting here
-#   NOISE=wrist_mask WINDOWS="15-35,45-60;5-200" ...   # one camera lost: what per-modality imagination keeps
+#   NOISE=wrist_mask WINDOWS="15-35+45-60;5-200" ...   # one camera lost: what per-modality imagination keeps
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -28,14 +28,14 @@ IFS=';' read -ra SETTINGS <<< "$WINDOWS"
 for setting in "${SETTINGS[@]}"; do
   out=$ROOT/$setting
   if [ -f "$out/success.csv" ]; then echo "windows $setting: done before, kept"; continue; fi
-  windows="[$(echo "$setting" | sed -E 's/([0-9]+)-([0-9]+)/[\1,\2]/g')]"   # 15-35,45-60 -> [[15,35],[45,60]]
+  windows="[$(echo "$setting" | sed -E 's/([0-9]+)-([0-9]+)/[\1,\2]/g; s/\+/,/g')]"   # 15-35+45-60 -> [[15,35],[45,60]]
   echo "[$(date +%H:%M:%S)] seed $SEED $NOISE windows $windows ($EPISODES episodes, $VARIANTS)"
   nostra evaluate profile=$PROFILE task=$TASK paths.runs=$RUNS seed=$SEED evaluate.checkpoint=best \
     "evaluate.noises=[$NOISE]" evaluate.episodes=$EPISODES $drop "evaluate.windows={$NAME: $windows}" \
     evaluate.offline.enabled=false evaluate.out_dir=$out
 done
 OUT=${OUT:-$REPORTS/$TASK/horizon-$NOISE-s$SEED}
-TASK_WINDOWS=$(python -c "import yaml; w = yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows']; print(','.join(f'{a}-{b}' for a, b in w))")
+TASK_WINDOWS=$(python -c "import yaml; w = yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows']; print('+'.join(f'{a}-{b}' for a, b in w))")
 HORIZON=$(python - <<PY
 from hydra import compose, initialize_config_dir
 from pipeline._hydra import CONF_DIR

@@ -4,7 +4,8 @@ joint-latent imagination (BC-RSSM + LI) as the oracle windows grow, read from th
 
     <evaluations>/<setting>/**/records/<task>/<noise>/<variant>_seed<k>.npz
 
-with <setting> the windows as ``start-end[,start-end...]`` (e.g. ``15-65``, ``15-35,45-60``), and
+with <setting> the windows as ``start-end[+start-end...]`` (e.g. ``15-65``, ``15-35+45-60``; a folder name, so no comma: Hydra
+reads a comma in an override as a list), and
 beside them the claims cells of the same checkpoint (``--reference``: the task's windows, and the
 clean rollouts each imagining variant's drift is measured from).
 
@@ -14,7 +15,7 @@ the imagined steps both episodes reach, between its path and its own model's cle
 initial state (the paper's Figure 4 as a number), with the paired LI - MLI difference (Wilcoxon).
 
     python -m nostra.workflows.horizon_report --evaluations data/runs/cpu/evaluate/liftd1-horizon/s2/mask \
-        --reference data/runs/cpu/evaluate/liftd1/s2/best --reference-windows 15-35,45-60 \
+        --reference data/runs/cpu/evaluate/liftd1/s2/best --reference-windows 15-35+45-60 \
         --out reports/cpu/liftd1/horizon-mask-s2
 """
 
@@ -34,15 +35,15 @@ from nostra.workflows.variants import LABELS
 
 PAIR = ("nostra_mli", "rssm_li")  # per-modality - joint-latent imagination
 CLEAN = {"nostra_mli": "nostra", "rssm_li": "rssm"}  # the model whose clean run an imagined path is measured from
-SETTING = re.compile(r"\d+-\d+(,\d+-\d+)*")
+SETTING = re.compile(r"\d+-\d+(\+\d+-\d+)*")
 GAP, ALPHA = 0.10, 0.05  # the test stated in the README: MLI - LI >= 10 points with p < 0.05
 
 
 def parse_setting(name: str) -> list[tuple[int, int]]:
-    """'15-35,45-60' -> [(15, 35), (45, 60)]; anything else fails naming the expected form."""
+    """'15-35+45-60' -> [(15, 35), (45, 60)]; anything else fails naming the expected form."""
     if not SETTING.fullmatch(name):
-        raise ValueError(f"window setting {name!r}: expected start-end[,start-end...], e.g. 15-65 or 15-35,45-60")
-    windows = [tuple(map(int, w.split("-"))) for w in name.split(",")]
+        raise ValueError(f"window setting {name!r}: expected start-end[+start-end...], e.g. 15-65 or 15-35+45-60")
+    windows = [tuple(map(int, w.split("-"))) for w in name.split("+")]
     if bad := [w for w in windows if not 0 < w[0] < w[1]]:
         raise ValueError(f"window setting {name!r}: windows {bad} must satisfy 0 < start < end")
     return windows
@@ -73,7 +74,7 @@ def load(evaluations: Path, reference: Path | None, reference_windows: str | Non
         folders[d.name] = d
     if reference is not None:
         if not reference_windows:
-            raise ValueError("--reference needs --reference-windows (the task's windows, e.g. 15-35,45-60)")
+            raise ValueError("--reference needs --reference-windows (the task's windows, e.g. 15-35+45-60)")
         folders.setdefault(reference_windows, reference / noise)  # a setting run here wins over the claims cell
     for name in folders:
         parse_setting(name)
@@ -203,7 +204,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--noise", default="mask")
     ap.add_argument("--reference", type=Path, default=None,
                     help="<runs>/evaluate/<task>/s<seed>/best: the claims cells (task's windows, clean runs)")
-    ap.add_argument("--reference-windows", default=None, help="the reference's windows, e.g. 15-35,45-60")
+    ap.add_argument("--reference-windows", default=None, help="the reference's windows, e.g. 15-35+45-60")
     ap.add_argument("--horizon", type=int, default=200, help="the rollout horizon (caps a window's imagined steps)")
     ap.add_argument("--command", default=None)
     ap.add_argument("--wall-seconds", type=float, default=None)
