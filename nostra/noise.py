@@ -194,8 +194,8 @@ def _suite(name: str, params: dict) -> list[Injector]:
     }[name]
 
 
-NOISES = ("none", "mask", "wrist_mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero", "proprio_stuck", "rgb", "rgbd",
-          "all", "blind", "clean_windows")
+NOISES = ("none", "mask", "wrist_mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero", "proprio_stuck",
+          "rgb", "rgbd", "all", "blind", "clean_windows")
 WHOLE_EPISODE = ("blind",)  # noises that ignore the windows: active from the first step to the last
 
 

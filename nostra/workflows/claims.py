@@ -36,7 +36,8 @@ NOISE_ORDER = TABLE1_NOISES + TABLE2_NOISES + DIAGNOSTIC_NOISES + CONTROL_NOISES
 ROWS = ["lstm", "diffusion", "rssm", "rssm_li", "nostra", "nostra_mli", "nostra_adamli"]
 # (a, b, noises): a - b, paired on the same initial states
 PAIRS = [("nostra_mli", "nostra", TABLE1_NOISES[1:]), ("nostra_mli", "lstm", TABLE1_NOISES),
-         ("nostra_mli", "diffusion", TABLE1_NOISES), ("nostra_mli", "rssm_li", TABLE1_NOISES[1:] + TABLE2_NOISES + ["wrist_mask"]),
+         ("nostra_mli", "diffusion", TABLE1_NOISES),
+         ("nostra_mli", "rssm_li", TABLE1_NOISES[1:] + TABLE2_NOISES + ["wrist_mask"]),
          ("nostra_adamli", "nostra_mli", TABLE1_NOISES[1:] + TABLE2_NOISES + DIAGNOSTIC_NOISES)] + [
     ("nostra_adamli", b, TABLE2_NOISES + DIAGNOSTIC_NOISES) for b in ("nostra", "lstm", "diffusion", "rssm")]
 CLEAN_MIN, BLIND_MAX, WITHIN = 0.85, 0.20, 0.10  # the bars: clean >= 85%, blind <= 20%, within 10 points

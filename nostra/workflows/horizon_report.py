@@ -4,10 +4,10 @@ joint-latent imagination (BC-RSSM + LI) as the oracle windows grow, read from th
 
     <evaluations>/<setting>/**/records/<task>/<noise>/<variant>_seed<k>.npz
 
-with <setting> the windows as ``start-end[+start-end...]`` (e.g. ``15-65``, ``15-35+45-60``; a folder name, so no comma: Hydra
-reads a comma in an override as a list), and
-beside them the claims cells of the same checkpoint (``--reference``: the task's windows, and the
-clean rollouts each imagining variant's drift is measured from).
+with <setting> the windows as ``start-end[+start-end...]`` (e.g. ``15-65``, ``15-35+45-60``: a folder
+name, so no comma, which Hydra reads as a list), and beside them the claims cells of the same
+checkpoint (``--reference``: the task's windows, and the clean rollouts each imagining variant's drift
+is measured from).
 
 Per setting: success (95% Wilson interval), MLI - LI paired over the initial states (claims.paired:
 bootstrap interval, McNemar exact p), and each variant's end-effector drift: the mean distance, over
@@ -69,9 +69,7 @@ def drift_cm(imagined: Path, clean: Path | None) -> float:
 
 def load(evaluations: Path, reference: Path | None, reference_windows: str | None, noise: str) -> pd.DataFrame:
     """One row per (setting, variant, episode): success and drift."""
-    folders = {}
-    for d in sorted(p for p in evaluations.iterdir() if p.is_dir()) if evaluations.is_dir() else []:
-        folders[d.name] = d
+    folders = {d.name: d for d in sorted(evaluations.iterdir()) if d.is_dir()} if evaluations.is_dir() else {}
     if reference is not None:
         if not reference_windows:
             raise ValueError("--reference needs --reference-windows (the task's windows, e.g. 15-35+45-60)")
@@ -133,8 +131,8 @@ def _windows_text(name: str) -> str:
 def markdown(s: pd.DataFrame, noise: str, header: list[str], reference_windows: str | None) -> list[str]:
     mli, li = (LABELS[v] for v in PAIR)
     text = ["# Imagination over longer windows: per-modality vs joint-latent", "", *header,
-            f"Oracle imagination over each setting's windows under `{noise}`: {mli} imagines the cameras and "
-            f"observes the proprioception, {li} imagines its joint latent (every modality). Success in % "
+            f"Oracle imagination over each setting's windows under `{noise}`: {mli} imagines the modalities "
+            f"the noise corrupts and observes the rest, {li} imagines its joint latent (every modality). Success in % "
             "(95% Wilson interval) over the paired episodes (the same initial states in every cell); "
             f"{mli} - {li} with a 95% bootstrap interval, discordant episodes and McNemar's exact p. Drift: "
             "the mean end-effector distance (cm), over the imagined steps both episodes reach, from the same "
