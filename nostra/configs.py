@@ -222,7 +222,7 @@ class OfflineConfig:
     enabled: bool = True
     checkpoint: str = ""
     collections: list[str] = field(default_factory=list)
-    noise: str = "rgb"               # mask | wrist_mask | depth_mask | proprio_zero | proprio_stuck | rgb | rgbd | all
+    noise: str = "rgb"               # mask | wrist_mask | agentview_mask | depth_mask | proprio_zero | proprio_stuck | rgb | rgbd | all
     episodes: int = 8                # demos of the training run's split (below), the first ones
     split: str = "held_out"          # held_out (never trained on) | train (the demos it trained on)
     windows: list[list[int]] | None = None   # None: the middle third of each demo

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nostra.modality import WRIST_IMAGE, sim_observations
+from nostra.modality import FRONT_IMAGE, WRIST_IMAGE, sim_observations
 from nostra.policies.imagination import in_windows, window_mask
 
 # what the injectors corrupt: the simulator's modalities by kind (the observation contract)
@@ -181,6 +181,7 @@ def _suite(name: str, params: dict) -> list[Injector]:
         "none": [],
         "mask": [rgb],
         "wrist_mask": [Mask((WRIST_IMAGE,), mask)],  # one camera (the paper's real-robot occlusion, Table 6)
+        "agentview_mask": [Mask((FRONT_IMAGE,), mask)],  # the other one
         "depth_mask": [depth],
         "cam_jitter": [CamJitter(params.get("jitter_std", 0.1))],
         "table_tex": [TableTexture(params.get("texture", UNSEEN_TABLE_TEXTURE))],
@@ -194,8 +195,8 @@ def _suite(name: str, params: dict) -> list[Injector]:
     }[name]
 
 
-NOISES = ("none", "mask", "wrist_mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero", "proprio_stuck",
-          "rgb", "rgbd", "all", "blind", "clean_windows")
+NOISES = ("none", "mask", "wrist_mask", "agentview_mask", "depth_mask", "cam_jitter", "table_tex", "proprio_zero",
+          "proprio_stuck", "rgb", "rgbd", "all", "blind", "clean_windows")
 WHOLE_EPISODE = ("blind",)  # noises that ignore the windows: active from the first step to the last
 
 

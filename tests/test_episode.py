@@ -265,6 +265,7 @@ def test_oracle_keys():
     assert oracle_keys(NoiseSchedule("none", WINDOWS), ["agentview_image"]) == set()
     cams = ["agentview_image", "robot0_eye_in_hand_image", "robot0_eef_pos"]
     assert oracle_keys(NoiseSchedule("wrist_mask", WINDOWS), cams) == {"robot0_eye_in_hand_image"}  # one camera
+    assert oracle_keys(NoiseSchedule("agentview_mask", WINDOWS), cams) == {"agentview_image"}
 
 
 def test_wrist_mask_leaves_the_agent_view():

@@ -31,13 +31,13 @@ TABLE2_NOISES = ["rgb", "rgbd", "all"]  # multimodal noise (cameras, + depth, + 
 CONTROL_NOISES = ["clean_windows", "blind"]
 # single-modality noises, run to tell which part of a multimodal noise AdaMLI fails on, or what per-modality
 # imagination keeps when one camera is lost (no claim rests on them)
-DIAGNOSTIC_NOISES = ["wrist_mask", "depth_mask", "proprio_zero", "proprio_stuck"]
+DIAGNOSTIC_NOISES = ["wrist_mask", "agentview_mask", "depth_mask", "proprio_zero", "proprio_stuck"]
 NOISE_ORDER = TABLE1_NOISES + TABLE2_NOISES + DIAGNOSTIC_NOISES + CONTROL_NOISES  # the tables' columns
 ROWS = ["lstm", "diffusion", "rssm", "rssm_li", "nostra", "nostra_mli", "nostra_adamli"]
 # (a, b, noises): a - b, paired on the same initial states
 PAIRS = [("nostra_mli", "nostra", TABLE1_NOISES[1:]), ("nostra_mli", "lstm", TABLE1_NOISES),
          ("nostra_mli", "diffusion", TABLE1_NOISES),
-         ("nostra_mli", "rssm_li", TABLE1_NOISES[1:] + TABLE2_NOISES + ["wrist_mask"]),
+         ("nostra_mli", "rssm_li", TABLE1_NOISES[1:] + TABLE2_NOISES + ["wrist_mask", "agentview_mask"]),
          ("nostra_adamli", "nostra_mli", TABLE1_NOISES[1:] + TABLE2_NOISES + DIAGNOSTIC_NOISES)] + [
     ("nostra_adamli", b, TABLE2_NOISES + DIAGNOSTIC_NOISES) for b in ("nostra", "lstm", "diffusion", "rssm")]
 CLEAN_MIN, BLIND_MAX, WITHIN = 0.85, 0.20, 0.10  # the issue's bars: clean >= 85%, blind <= 20%, within 10 points
