@@ -29,7 +29,7 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 
-from nostra.workflows.claims import header_lines, paired, paired_cells
+from nostra.workflows.claims import _cell, header_lines, paired, paired_cells
 from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
@@ -121,7 +121,14 @@ def summary(df: pd.DataFrame, horizon: int) -> pd.DataFrame:
 def _rate(r, v: str) -> str:
     if pd.isna(r.get(f"{v}_rate")):
         return "–"
-    return f"{100 * r[f'{v}_rate']:.0f} [{100 * r[f'{v}_ci_low']:.0f}, {100 * r[f'{v}_ci_high']:.0f}]"
+    return _cell(SimpleNamespace(rate=r[f"{v}_rate"], ci_low=r[f"{v}_ci_low"], ci_high=r[f"{v}_ci_high"]))
+
+
+def _pair(r) -> str:
+    if pd.isna(r.get("pair_diff")):
+        return "– | – | –"
+    return paired_cells(SimpleNamespace(diff=r.pair_diff, ci_low=r.pair_ci_low, ci_high=r.pair_ci_high,
+                                        a_only=int(r.pair_a_only), b_only=int(r.pair_b_only), p=r.pair_p))
 
 
 def _windows_text(name: str) -> str:
@@ -142,12 +149,9 @@ def markdown(s: pd.DataFrame, noise: str, header: list[str], reference_windows: 
             f"| windows | imagined steps | {mli} | {li} | MLI - LI | only MLI / only LI | p | drift MLI (cm) | "
             "drift LI (cm) | LI - MLI drift (cm), p |", "|---|---|---|---|---|---|---|---|---|---|"]
     for _, r in s.iterrows():
-        pair = "– | – | –" if pd.isna(r.get("pair_diff")) else paired_cells(SimpleNamespace(
-            **{k[5:]: v for k, v in r.items() if k.startswith("pair_")} | {"a_only": int(r.pair_a_only),
-                                                                           "b_only": int(r.pair_b_only)}))
         drift = (f"{r.drift_diff_cm:+.1f}, p = {r.drift_p:.2g}" if not pd.isna(r.get("drift_p")) else "–")
         text.append(f"| {_windows_text(r.setting)} | {r.steps} | {_rate(r, PAIR[0])} | {_rate(r, PAIR[1])} | "
-                    f"{pair} | {r.get(f'{PAIR[0]}_drift_cm', np.nan):.1f} | {r.get(f'{PAIR[1]}_drift_cm', np.nan):.1f} "
+                    f"{_pair(r)} | {r.get(f'{PAIR[0]}_drift_cm', np.nan):.1f} | {r.get(f'{PAIR[1]}_drift_cm', np.nan):.1f} "
                     f"| {drift} |")
     gap = [r for _, r in s.iterrows() if r.get("pair_diff", np.nan) >= GAP and r.get("pair_p", 1) < ALPHA]
     text += ["", f"Settings where {mli} beats {li} by >= {100 * GAP:.0f} points with p < {ALPHA}: "
