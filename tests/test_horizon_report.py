@@ -47,6 +47,7 @@ def test_success_pairs_and_drift(tmp_path):
     assert "| [5, 20) | 15 | 80 [58, 92] | 20 [8, 42] | +60 [+40, +80] | 12 / 0 | 0.00049 | 2.0 | 5.0 |" in report
     assert "by >= 10 points with p < 0.05: [5, 20)." in report
     assert "The row [5, 10) is the task's windows" in report
+    assert "- Initial states: environment seeds 1000-1019 (20 distinct, the same in every cell)" in report
     assert (tmp_path / "out" / "horizon.png").stat().st_size > 10_000
     assert (tmp_path / "out" / "horizon.csv").is_file() and (tmp_path / "out" / "episodes.csv").is_file()
 

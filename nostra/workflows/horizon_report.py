@@ -135,9 +135,12 @@ def _windows_text(name: str) -> str:
     return " + ".join(f"[{a}, {b})" for a, b in parse_setting(name))
 
 
-def markdown(s: pd.DataFrame, noise: str, header: list[str], reference_windows: str | None) -> list[str]:
+def markdown(s: pd.DataFrame, noise: str, header: list[str], reference_windows: str | None,
+             episodes: pd.Series | None = None) -> list[str]:
     mli, li = (LABELS[v] for v in PAIR)
-    text = ["# Imagination over longer windows: per-modality vs joint-latent", "", *header,
+    seeds = ([f"- Initial states: environment seeds {episodes.min()}-{episodes.max()} ({episodes.nunique()} distinct, "
+              "the same in every cell)"] if episodes is not None and len(episodes) else [])
+    text = ["# Imagination over longer windows: per-modality vs joint-latent", "", *[h for h in header if h], *seeds, "",
             f"Oracle imagination over each setting's windows under `{noise}`: {mli} imagines the modalities "
             f"the noise corrupts and observes the rest, {li} imagines its joint latent (every modality). Success in % "
             "(95% Wilson interval) over the paired episodes (the same initial states in every cell); "
@@ -194,7 +197,7 @@ def write_report(evaluations: Path, out: Path, noise: str = "mask", reference: P
     df.to_csv(out / "episodes.csv", index=False)
     s.to_csv(out / "horizon.csv", index=False)
     figure(s, out / "horizon.png")
-    text = "\n".join(markdown(s, noise, list(header), reference_windows))
+    text = "\n".join(markdown(s, noise, list(header), reference_windows, df.episode))
     (out / "horizon.md").write_text(text)
     return text
 
