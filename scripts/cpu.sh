@@ -10,6 +10,8 @@
 #   OBS=rgbd make cpu    # the policies see agentview depth too (profile cpu_rgbd, Table 2), in data/runs/cpu-rgbd
 #   CAPACITY=matched MODELS="lstm rssm nostra" make cpu   # BC-LSTM and BC-RSSM at NOSTRA's parameter count
 #   SEEDS=2 CPU_OUT=reports/cpu/liftd1/claims-s2/cpu make cpu   # the report elsewhere, not over seeds 0-1's
+#   MODELS=diffusion DP_MINUTES=90 DP_STEPS=14000 DP_CHECK_EVERY=2000 make cpu   # Diffusion Policy's own budget:
+#     its cosine spans DP_STEPS (what DP_MINUTES buys here), an in-training check every DP_CHECK_EVERY steps
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -18,6 +20,7 @@ SEEDS=${SEEDS:-0}
 MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
 HORIZON=${HORIZON:-}   # rollout horizon in steps; empty: the profile's (200, enough for Lift)
+DP_MINUTES=${DP_MINUTES:-} DP_STEPS=${DP_STEPS:-} DP_CHECK_EVERY=${DP_CHECK_EVERY:-}
 source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
 OUT=${CPU_OUT:-$REPORTS/$TASK}   # CPU_OUT: elsewhere (a seed run alone, its siblings' runs not on this disk)
 COMMON="profile=$PROFILE task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
@@ -44,9 +47,14 @@ for seed in $SEEDS; do
            log "train $model seed $seed: the configured run, linked"; continue ;;
       esac
     fi
-    log "train $model seed $seed ($MINUTES min budget${width:+, $width})"
-    nostra train $COMMON model=$model seed=$seed "data.collections=[${TASK}_cpu]" train.max_minutes=$MINUTES \
-      "train.rollout.modes=[closed]" $width
+    minutes=$MINUTES extra=""
+    if [ $model = diffusion ]; then
+      minutes=${DP_MINUTES:-$MINUTES}
+      extra="${DP_STEPS:+profile.dp_total_steps=$DP_STEPS}${DP_CHECK_EVERY:+ train.rollout.every=$DP_CHECK_EVERY}"
+    fi
+    log "train $model seed $seed ($minutes min budget${width:+, $width}${extra:+, $extra})"
+    nostra train $COMMON model=$model seed=$seed "data.collections=[${TASK}_cpu]" train.max_minutes=$minutes \
+      "train.rollout.modes=[closed]" $width $extra
   done
 done
 
@@ -88,6 +96,6 @@ for seed in $SEEDS; do
 done
 
 python -m nostra.workflows.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY make cpu" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY make cpu" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/index.md"

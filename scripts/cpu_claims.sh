@@ -7,6 +7,7 @@
 #
 # Resumable: a cell whose records exist is kept, training continues from last.ckpt.
 #   TASK=liftd1 SEEDS="0 1" MODELS="lstm nostra" make cpu-claims    # MODELS may add rssm diffusion
+#   SEEDS=2 MODELS="lstm nostra diffusion" DP_MINUTES=90 DP_STEPS=14000 DP_CHECK_EVERY=2000 make cpu-claims  # DP its own budget (scripts/cpu.sh)
 # NOISES and CHECKPOINTS pick a subset of the cells to run first (the report covers whatever has run):
 #   SEEDS="0 1" NOISES="none mask blind" CHECKPOINTS=best make cpu-claims
 # Table 2 (multimodal noise, AdaMLI): the policies see agentview depth too (OBS=rgbd, scripts/cpu.sh), and
@@ -103,6 +104,6 @@ if [ "$CAPACITY" = matched ]; then  # the widths the runs were trained with, in 
   note=(--note "Capacity-matched: BC-LSTM and BC-RSSM at BC-NOSTRA's parameter count (${widths% }); BC-NOSTRA as configured")
 fi
 python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" "${note[@]}" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY NOISES=\"$NOISES\" CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY NOISES=\"$NOISES\" CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/claims.md"
