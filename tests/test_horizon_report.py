@@ -3,6 +3,7 @@ per window setting, each imagined path's drift from its own model's clean path, 
 read from the claims cells, and clear errors for a folder that is no window setting."""
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from nostra.workflows.horizon_report import drift_cm, load, parse_setting, summary, write_report
@@ -83,3 +84,38 @@ def test_a_setting_run_here_wins_over_the_claims_cell(tmp_path):
     mli = df[(df.setting == "5-10") & (df.variant == "nostra_mli")]
     assert len(mli) == 20 and not mli.success.any()
     assert not len(df[(df.setting == "5-10") & (df.variant == "rssm_li")])  # not mixed with the claims cell's
+
+
+def test_pool_over_seeds_pairs_by_seed_and_episode(tmp_path):
+    from nostra.workflows.horizon_pool import write_pool
+
+    ev, ref = _scenario(tmp_path)
+    a, b = tmp_path / "s2", tmp_path / "s3"
+    write_report(ev, a, "mask", ref, "5-10", horizon=20)
+    (ev / "5-15").mkdir()  # a setting only the second seed has: left out of the pool, named
+    _write(ev / "5-15", "mask", "nostra_mli", [True] * 20, [(5, 15)])
+    _write(ev / "5-15", "mask", "rssm_li", [True] * 20, [(5, 15)])
+    write_report(ev, b, "mask", ref, "5-10", horizon=20)
+    report = write_pool([a, b], [2, 3], tmp_path / "pooled", "mask", horizon=20, reference_windows="5-10")
+    s = pd.read_csv(tmp_path / "pooled" / "horizon.csv").set_index("setting")
+    assert list(s.index) == ["5-10", "5-20"]
+    long = s.loc["5-20"]  # the same episodes twice: 40 paired units, 24 discordant, all for MLI
+    assert long.nostra_mli_n == 40 and long.pair_n == 40 and long.pair_a_only == 24
+    assert long.pair_p == pytest.approx(2 * 0.5 ** 24) and long.drift_n == 40
+    assert "Not in every seed's report, so not pooled: [5, 15)" in report
+    assert "Pooled over training seeds 2, 3" in report
+
+
+def test_pool_errors_name_the_file_and_value(tmp_path):
+    from nostra.workflows.horizon_pool import write_pool
+
+    ev, ref = _scenario(tmp_path)
+    a = tmp_path / "s2"
+    write_report(ev, a, "mask", ref, "5-10", horizon=20)
+    with pytest.raises(FileNotFoundError, match="nope/episodes.csv"):
+        write_pool([a, tmp_path / "nope"], [2, 3], tmp_path / "out")
+    with pytest.raises(ValueError, match="one distinct training seed per report"):
+        write_pool([a, a], [2, 2], tmp_path / "out")
+    with pytest.raises(ValueError, match=r"ran under 'mask', not --noise 'wrist_mask'"):
+        write_pool([a], [2], tmp_path / "out", noise="wrist_mask")
+    assert not (tmp_path / "out").exists()  # nothing written on bad input

@@ -102,7 +102,8 @@ def summary(df: pd.DataFrame, horizon: int) -> pd.DataFrame:
     rows = []
     for name, g in df.groupby("setting"):
         row = {"setting": name, "steps": imagined_steps(name, horizon)}
-        cells = {v: c.set_index("episode") for v, c in g.groupby("variant")}
+        unit = ["seed", "episode"] if "seed" in g else "episode"  # pooled: a (training seed, episode) pair
+        cells = {v: c.set_index(unit) for v, c in g.groupby("variant")}
         for v, c in cells.items():
             k, n = int(c.success.sum()), len(c)
             lo, hi = wilson(k, n)
