@@ -68,7 +68,7 @@ def test_bad_settings(tmp_path):
     with pytest.raises(ValueError, match=r"\[\(65, 15\)\] must satisfy 0 < start < end"):
         parse_setting("65-15")
     ev, ref = _scenario(tmp_path)
-    with pytest.raises(FileNotFoundError, match="no records of nostra_mli, rssm_li under 'cam_jitter'"):
+    with pytest.raises(FileNotFoundError, match="no records of nostra_mli, rssm_li, nostra_adamli under 'cam_jitter'"):
         load(ev, None, None, "cam_jitter")
     with pytest.raises(ValueError, match="--reference needs --reference-windows"):
         load(ev, ref, None, "mask")
@@ -119,3 +119,13 @@ def test_pool_errors_name_the_file_and_value(tmp_path):
     with pytest.raises(ValueError, match=r"ran under 'mask', not --noise 'wrist_mask'"):
         write_pool([a], [2], tmp_path / "out", noise="wrist_mask")
     assert not (tmp_path / "out").exists()  # nothing written on bad input
+
+
+def test_adamli_paired_with_the_oracle_where_it_ran(tmp_path):
+    ev, ref = _scenario(tmp_path)
+    _write(ev / "5-20", "mask", "nostra_adamli", [True] * 10 + [False] * 10, [(5, 20)], 0.03)
+    report = write_report(ev, tmp_path / "out", "mask", ref, "5-10", horizon=20)
+    s = summary(load(ev, ref, "5-10", "mask"), horizon=20).set_index("setting")
+    assert s.loc["5-20"].ada_diff == pytest.approx(-0.3) and s.loc["5-20"].ada_b_only == 6
+    assert pd.isna(s.loc["5-10"].ada_diff)  # AdaMLI not run at the task's windows: no row for it
+    assert "| [5, 20) | 50 [30, 70] | 80 [58, 92] | -30 [-50, -10] | 0 / 6 | 0.031 | 3.0 |" in report

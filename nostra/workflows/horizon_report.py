@@ -13,6 +13,8 @@ Per setting: success (95% Wilson interval), MLI - LI paired over the initial sta
 bootstrap interval, McNemar exact p), and each variant's end-effector drift: the mean distance, over
 the imagined steps both episodes reach, between its path and its own model's clean path from the same
 initial state (the paper's Figure 4 as a number), with the paired LI - MLI difference (Wilcoxon).
+Where BC-NOSTRA + AdaMLI ran too (scripts/cpu_horizon.sh's VARIANTS), AdaMLI - MLI paired: the windows
+found from the KL against the windows told.
 
     python -m nostra.workflows.horizon_report --evaluations data/runs/cpu/evaluate/liftd1-horizon/s2/mask \
         --reference data/runs/cpu/evaluate/liftd1/s2/best --reference-windows 15-35+45-60 \
@@ -34,7 +36,8 @@ from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
 PAIR = ("nostra_mli", "rssm_li")  # per-modality - joint-latent imagination
-CLEAN = {"nostra_mli": "nostra", "rssm_li": "rssm"}  # the model whose clean run an imagined path is measured from
+ADAPTIVE = ("nostra_adamli", "nostra_mli")  # where run (VARIANTS): AdaMLI finding the windows itself - the oracle
+CLEAN = {"nostra_mli": "nostra", "rssm_li": "rssm", "nostra_adamli": "nostra"}  # whose clean run a path is measured from
 SETTING = re.compile(r"\d+-\d+(\+\d+-\d+)*")
 GAP, ALPHA = 0.10, 0.05  # the test stated in the README: MLI - LI >= 10 points with p < 0.05
 
@@ -79,14 +82,14 @@ def load(evaluations: Path, reference: Path | None, reference_windows: str | Non
     cleans = {v: _records(reference / "none", "none", m) if reference else {} for v, m in CLEAN.items()}
     rows = []
     for name, folder in folders.items():
-        for variant in PAIR:
+        for variant in CLEAN:
             for episode, f in _records(folder, noise, variant).items():
                 with np.load(f) as z:
                     success = bool(z["success"])
                 rows.append({"setting": name, "variant": variant, "episode": episode, "success": success,
                              "drift_cm": drift_cm(f, cleans[variant].get(episode))})
     if not rows:
-        raise FileNotFoundError(f"no records of {', '.join(PAIR)} under {noise!r} in {evaluations}"
+        raise FileNotFoundError(f"no records of {', '.join(CLEAN)} under {noise!r} in {evaluations}"
                                 + (f" or {reference / noise}" if reference else ""))
     return pd.DataFrame(rows)
 
@@ -115,6 +118,9 @@ def summary(df: pd.DataFrame, horizon: int) -> pd.DataFrame:
             d = (b.drift_cm - a.drift_cm).dropna()
             row |= {"drift_diff_cm": d.mean() if len(d) else np.nan, "drift_n": len(d),
                     "drift_p": wilcoxon(d).pvalue if len(d) and np.any(d != 0) else np.nan}
+        if all(v in cells for v in ADAPTIVE):
+            a, b = (cells[v] for v in ADAPTIVE)
+            row |= {f"ada_{k}": x for k, x in paired(a.success, b.success).items()}
         rows.append(row)
     return pd.DataFrame(rows).sort_values("steps").reset_index(drop=True)
 
@@ -125,11 +131,11 @@ def _rate(r, v: str) -> str:
     return _cell(SimpleNamespace(rate=r[f"{v}_rate"], ci_low=r[f"{v}_ci_low"], ci_high=r[f"{v}_ci_high"]))
 
 
-def _pair(r) -> str:
-    if pd.isna(r.get("pair_diff")):
+def _pair(r, prefix: str = "pair") -> str:
+    if pd.isna(r.get(f"{prefix}_diff")):
         return "– | – | –"
-    return paired_cells(SimpleNamespace(diff=r.pair_diff, ci_low=r.pair_ci_low, ci_high=r.pair_ci_high,
-                                        a_only=int(r.pair_a_only), b_only=int(r.pair_b_only), p=r.pair_p))
+    f = {k: r[f"{prefix}_{k}"] for k in ("diff", "ci_low", "ci_high", "a_only", "b_only", "p")}
+    return paired_cells(SimpleNamespace(**f | {"a_only": int(f["a_only"]), "b_only": int(f["b_only"])}))
 
 
 def _windows_text(name: str) -> str:
@@ -159,9 +165,24 @@ def markdown(s: pd.DataFrame, noise: str, header: list[str], reference_windows: 
                     f"| {drift} |")
     gap = [r for _, r in s.iterrows() if r.get("pair_diff", np.nan) >= GAP and r.get("pair_p", 1) < ALPHA]
     text += ["", f"Settings where {mli} beats {li} by >= {100 * GAP:.0f} points with p < {ALPHA}: "
-             + (", ".join(_windows_text(r.setting) for r in gap) if gap else "none") + ".", "",
-             "![success and drift per window setting](horizon.png)", ""]
-    return text
+             + (", ".join(_windows_text(r.setting) for r in gap) if gap else "none") + ".", ""]
+    return text + adaptive_table(s) + ["![success and drift per window setting](horizon.png)", ""]
+
+
+def adaptive_table(s: pd.DataFrame) -> list[str]:
+    """AdaMLI (the windows found from the KL) against the oracle MLI, where both ran."""
+    rows = s[s.ada_diff.notna()] if "ada_diff" in s else s.iloc[:0]
+    if rows.empty:
+        return []
+    ada, mli = (LABELS[v] for v in ADAPTIVE)
+    text = [f"{ada} decides from the KL where to imagine; against {mli} (told the windows) on the same initial "
+            "states, paired as above:", "",
+            f"| windows | {ada} | {mli} | AdaMLI - MLI | only AdaMLI / only MLI | p | drift AdaMLI (cm) |",
+            "|---|---|---|---|---|---|---|"]
+    for _, r in rows.iterrows():
+        text.append(f"| {_windows_text(r.setting)} | {_rate(r, ADAPTIVE[0])} | {_rate(r, ADAPTIVE[1])} | "
+                    f"{_pair(r, 'ada')} | {r.get(f'{ADAPTIVE[0]}_drift_cm', np.nan):.1f} |")
+    return text + [""]
 
 
 def figure(s: pd.DataFrame, path: Path) -> None:
@@ -172,11 +193,11 @@ def figure(s: pd.DataFrame, path: Path) -> None:
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(10, 4))
     x = np.arange(len(s))
-    for i, v in enumerate(PAIR):
+    for i, v in enumerate(CLEAN):
         if f"{v}_rate" not in s:
             continue
         err = np.vstack([s[f"{v}_rate"] - s[f"{v}_ci_low"], s[f"{v}_ci_high"] - s[f"{v}_rate"]]) * 100
-        ax.errorbar(x + (i - 0.5) * 0.1, s[f"{v}_rate"] * 100, yerr=err, marker="o", capsize=3, label=LABELS[v])
+        ax.errorbar(x + (i - 1) * 0.1, s[f"{v}_rate"] * 100, yerr=err, marker="o", capsize=3, label=LABELS[v])
         bx.plot(x, s[f"{v}_drift_cm"], marker="o", label=LABELS[v])
     labels = [f"{_windows_text(n)}\n{k} steps" for n, k in zip(s.setting, s.steps)]
     for a, title, unit in ((ax, "success", "success (%), 95% Wilson"), (bx, "end-effector drift", "cm from the clean run")):
