@@ -9,6 +9,8 @@
 # setting with records is kept.
 #   TASK=liftd1 SEED=2 WINDOWS="15-65;15-200;5-200" bash scripts/cpu_horizon.sh   # ~4 min a setting here
 #   NOISE=wrist_mask WINDOWS="15-35+45-60;5-200" ...   # one camera lost: what per-modality imagination keeps
+#   VARIANTS=nostra_adamli NOISE=agentview_mask WINDOWS=5-200 ...   # AdaMLI too (paired with MLI in the report);
+#     variants other than the default go into <setting>/<variants>, so a setting run before is not taken for them
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -27,6 +29,7 @@ drop=$(for v in lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli; do
 IFS=';' read -ra SETTINGS <<< "$WINDOWS"
 for setting in "${SETTINGS[@]}"; do
   out=$ROOT/$setting
+  [ "$VARIANTS" = "nostra_mli rssm_li" ] || out=$out/$(echo $VARIANTS | tr ' ' '+')
   if [ -f "$out/success.csv" ]; then echo "windows $setting: done before, kept"; continue; fi
   windows="[$(echo "$setting" | sed -E 's/([0-9]+)-([0-9]+)/[\1,\2]/g; s/\+/,/g')]"   # 15-35+45-60 -> [[15,35],[45,60]]
   echo "[$(date +%H:%M:%S)] seed $SEED $NOISE windows $windows ($EPISODES episodes, $VARIANTS)"
