@@ -15,8 +15,8 @@
 #   OBS=rgbd SEEDS=0 MODELS="lstm nostra" make cpu-claims     # reports/cpu-rgbd/<task>/claims/
 # Capacity-matched (BC-LSTM and BC-RSSM at NOSTRA's parameter count; reports/cpu-matched/<task>/claims/):
 #   CAPACITY=matched SEEDS=0 MODELS="lstm rssm nostra" NOISES="none mask blind" make cpu-claims
-# OUT=<folder> writes the report there instead (a seed whose sibling seeds' records are not on this disk,
-# so that it does not replace their report):
+# OUT=<folder> writes the report there instead, of SEEDS only (a seed whose sibling seeds' records are not on
+# this disk, so that it does not replace their report, or one reported apart from the others here):
 #   OBS=rgbd SEEDS=1 MODELS=nostra CHECKPOINTS=best OUT=reports/cpu-rgbd/liftd1/claims-s1 make cpu-claims
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -28,6 +28,7 @@ MINUTES=${MINUTES:-30}
 HORIZON=${HORIZON:-}
 source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
 CPU_OUT=${OUT:+$OUT/cpu}   # with OUT, make cpu's report goes beside it, not over the task's index.md
+APART=(${OUT:+--seeds $SEEDS})   # with OUT, the report covers SEEDS only, not the other seeds on this disk
 OUT=${OUT:-$REPORTS/$TASK/claims}
 case $OBS in
   rgb) NOISES=${NOISES:-none mask cam_jitter table_tex clean_windows blind} ;;
@@ -103,7 +104,7 @@ if [ "$CAPACITY" = matched ]; then  # the widths the runs were trained with, in 
     python -m nostra.workflows.capacity --profile $PROFILE --task $TASK --override $m ;; esac; done | tr '\n' ' ')
   note=(--note "Capacity-matched: BC-LSTM and BC-RSSM at BC-NOSTRA's parameter count (${widths% }); BC-NOSTRA as configured")
 fi
-python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" "${note[@]}" \
+python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" "${note[@]}" "${APART[@]}" \
   --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY NOISES=\"$NOISES\" CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/claims.md"

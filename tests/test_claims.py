@@ -302,3 +302,20 @@ def test_a_checkpoint_with_clean_cells_alone_says_there_is_nothing_to_pair(tmp_p
     last = write_report(tmp_path, tmp_path / "out").split("## Checkpoint: last")[1]
     assert "None yet: no cell at this checkpoint has two variants to pair" in last
     assert "| Comparison |" not in last and "| not measured |" in last
+
+
+def test_seeds_report_one_training_seed_apart_from_the_others_on_disk(tmp_path):
+    from nostra.workflows.claims import main
+
+    _scenario(tmp_path / "ev", mli_mask=[True] * 10, lstm_mask=[False] * 10)
+    _write(tmp_path / "ev", 1, "best", "mask", "nostra_mli", [False] * 10)  # seed 1 differs: it must not enter
+    main(["--evaluations", str(tmp_path / "ev"), "--out", str(tmp_path / "out"), "--seeds", "0"])
+    episodes = pd.read_csv(tmp_path / "out" / "episodes.csv")
+    assert set(episodes.seed) == {0}
+    table = pd.read_csv(tmp_path / "out" / "table1.csv")
+    mli = table[(table.variant == "nostra_mli") & (table.noise == "mask")]
+    assert set(mli.seed.astype(str)) == {"0", "pooled"} and list(mli.rate) == [1.0, 1.0] and list(mli.n) == [10, 10]
+    assert set(pd.read_csv(tmp_path / "out" / "adamli_detection.csv").seed.astype(str)) <= {"0", "pooled"}
+    assert "- Training seeds: 0 (the others on this disk left out)" in (tmp_path / "out/claims.md").read_text()
+    with pytest.raises(FileNotFoundError, match=r"for training seeds \[7\]"):
+        write_report(tmp_path / "ev", tmp_path / "out7", seeds=[7])

@@ -156,7 +156,7 @@ def imagination_ratios(t: pd.DataFrame) -> pd.DataFrame:
                     kl_jump=ratio("jump", "jumps"), kl_swing=ratio("swing", "swings"))
 
 
-def adamli_detection(evaluations: Path) -> pd.DataFrame:
+def adamli_detection(evaluations: Path, seeds: list[int] | None = None) -> pd.DataFrame:
     """AdaMLI in closed loop, per (checkpoint, seed, noise, modality): the share of the noise windows' steps
     on which it imagined the modality (its recall), split by whether the previous action commanded the
     gripper closed (a zeroed gripper reading looks like a closed gripper), the share of steps outside
@@ -166,8 +166,11 @@ def adamli_detection(evaluations: Path) -> pd.DataFrame:
     thresholds, which compare a change with the recent changes)."""
     counts = {}
     for f in sorted(evaluations.glob("s*/*/**/records/*/*/nostra_adamli_seed*.npz")):
+        cell = _cell_of(f, evaluations)
+        if seeds is not None and cell[0] not in seeds:
+            continue
         for modality, c in episode_imagination(f).items():  # a cell evaluated twice: the later wins
-            counts[(*_cell_of(f, evaluations), modality, f.stem)] = c
+            counts[(*cell, modality, f.stem)] = c
     rows = [{"checkpoint": ck, "seed": sd, "noise": noise, "modality": modality, **c}
             for (seed, ck, noise, modality, _), c in counts.items() for sd in (str(seed), POOLED)]
     if not rows:
@@ -355,17 +358,22 @@ def paired_markdown(pairs: pd.DataFrame, checkpoint: str, seed: str) -> list[str
     return lines
 
 
-def write_report(evaluations: Path, out: Path, header: list[str] = (), earlier: list[Path] = ()) -> str:
+def write_report(evaluations: Path, out: Path, header: list[str] = (), earlier: list[Path] = (),
+                 seeds: list[int] | None = None) -> str:
+    """``seeds``: only these training seeds' episodes (a seed reported apart from its siblings on this disk)."""
     df = episodes(evaluations, earlier)
+    if seeds is not None and len(df):
+        df = df[df.seed.isin(seeds)].reset_index(drop=True)
     if df.empty:
-        raise FileNotFoundError(f"no episode records under {evaluations}/s<seed>/<checkpoint>/**/records")
+        raise FileNotFoundError(f"no episode records under {evaluations}/s<seed>/<checkpoint>/**/records"
+                                + (f" for training seeds {seeds}" if seeds is not None else ""))
     out.mkdir(parents=True, exist_ok=True)
     success, pairs, fir = success_table(df), paired_table(df), false_imagination(df)
     df.sort_values(EPISODE_KEY).to_csv(out / "episodes.csv", index=False)
     success.to_csv(out / "table1.csv", index=False)
     pairs.to_csv(out / "paired.csv", index=False)
     fir.to_csv(out / "false_imagination.csv", index=False)
-    det = adamli_detection(evaluations)
+    det = adamli_detection(evaluations, seeds)
     if len(det):
         det.to_csv(out / "adamli_detection.csv", index=False)
     seeds = sorted(set(success.seed) - {POOLED}, key=str)
@@ -427,14 +435,19 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--note", action="append", default=[], help="a line for the header (e.g. the matched widths)")
     ap.add_argument("--episodes", nargs="+", type=Path, default=[],
                     help="earlier reports' episodes.csv, read beside the records (seeds whose records are elsewhere)")
+    ap.add_argument("--seeds", nargs="+", type=int, default=None,
+                    help="only these training seeds (default: every s<seed> folder and earlier episode)")
     args = ap.parse_args(argv)
-    copied = sorted(str(p.relative_to(args.evaluations)) for p in args.evaluations.glob("s*/last/*/same-as-best"))
+    copied = sorted(str(p.relative_to(args.evaluations)) for p in args.evaluations.glob("s*/last/*/same-as-best")
+                    if args.seeds is None or int(p.relative_to(args.evaluations).parts[0][1:]) in args.seeds)
     extra = ["- Last checkpoint = best checkpoint (the final check was the best): those cells are the best "
              f"cells' records, copied, not re-run: {', '.join(f'`{c}`' for c in copied)}"] if copied else []
     if args.episodes:
         extra.append(f"- Episodes read from earlier reports too: {', '.join(f'`{p}`' for p in args.episodes)}")
+    if args.seeds is not None:
+        extra.append(f"- Training seeds: {', '.join(map(str, args.seeds))} (the others on this disk left out)")
     header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note, extra)
-    print(write_report(args.evaluations, args.out, header, args.episodes))
+    print(write_report(args.evaluations, args.out, header, args.episodes, args.seeds))
 
 
 if __name__ == "__main__":
