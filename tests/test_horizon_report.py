@@ -68,7 +68,7 @@ def test_bad_settings(tmp_path):
     with pytest.raises(ValueError, match=r"\[\(65, 15\)\] must satisfy 0 < start < end"):
         parse_setting("65-15")
     ev, ref = _scenario(tmp_path)
-    with pytest.raises(FileNotFoundError, match="no records of nostra_mli, rssm_li, nostra_adamli under 'cam_jitter'"):
+    with pytest.raises(FileNotFoundError, match="no records of nostra_mli, rssm_li, nostra_adamli, nostra, rssm under 'cam_jitter'"):
         load(ev, None, None, "cam_jitter")
     with pytest.raises(ValueError, match="--reference needs --reference-windows"):
         load(ev, ref, None, "mask")
@@ -129,3 +129,13 @@ def test_adamli_paired_with_the_oracle_where_it_ran(tmp_path):
     assert s.loc["5-20"].ada_diff == pytest.approx(-0.3) and s.loc["5-20"].ada_b_only == 6
     assert pd.isna(s.loc["5-10"].ada_diff)  # AdaMLI not run at the task's windows: no row for it
     assert "| [5, 20) | 50 [30, 70] | 80 [58, 92] | -30 [-50, -10] | 0 / 6 | 0.031 | 3.0 |" in report
+    assert "AdaMLI - MLI | only AdaMLI / only MLI" in report and "MLI - NOSTRA" not in report  # closed loop not run
+
+
+def test_closed_loop_control_pairs_with_mli(tmp_path):
+    ev, ref = _scenario(tmp_path)
+    _write(ev / "5-20", "mask", "nostra", [True] * 2 + [False] * 18, [(5, 20)], 0.08)
+    report = write_report(ev, tmp_path / "out", "mask", ref, "5-10", horizon=20)
+    s = summary(load(ev, ref, "5-10", "mask"), horizon=20).set_index("setting")
+    assert s.loc["5-20"].closed_diff == pytest.approx(0.7) and s.loc["5-20"].closed_a_only == 14
+    assert "| [5, 20) | 80 [58, 92] | 10 [3, 30] | +70 [+50, +90] | 14 / 0 | 0.00012 | 2.0 |" in report

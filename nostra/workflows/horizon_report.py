@@ -13,8 +13,9 @@ Per setting: success (95% Wilson interval), MLI - LI paired over the initial sta
 bootstrap interval, McNemar exact p), and each variant's end-effector drift: the mean distance, over
 the imagined steps both episodes reach, between its path and its own model's clean path from the same
 initial state (the paper's Figure 4 as a number), with the paired LI - MLI difference (Wilcoxon).
-Where BC-NOSTRA + AdaMLI ran too (scripts/cpu_horizon.sh's VARIANTS), AdaMLI - MLI paired: the windows
-found from the KL against the windows told.
+Where BC-NOSTRA + AdaMLI or the closed-loop BC-NOSTRA or BC-RSSM ran too (scripts/cpu_horizon.sh's VARIANTS),
+AdaMLI - MLI (the windows found from the KL against told), MLI - NOSTRA and LI - BC-RSSM (what imagining
+saves over seeing the corrupted frames) paired.
 
     python -m nostra.workflows.horizon_report --evaluations data/runs/cpu/evaluate/liftd1-horizon/s2/mask \
         --reference data/runs/cpu/evaluate/liftd1/s2/best --reference-windows 15-35+45-60 \
@@ -36,9 +37,17 @@ from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
 PAIR = ("nostra_mli", "rssm_li")  # per-modality - joint-latent imagination
-ADAPTIVE = ("nostra_adamli", "nostra_mli")  # where run (VARIANTS): AdaMLI finding the windows itself - the oracle
-CLEAN = {"nostra_mli": "nostra", "rssm_li": "rssm", "nostra_adamli": "nostra"}  # whose clean run a path is measured from
+# where run (scripts/cpu_horizon.sh's VARIANTS): (prefix, (a, b), the sentence above its table), a - b paired
+VERSUS = (("ada", ("nostra_adamli", "nostra_mli"), "decides from the KL where to imagine; against {b} (told the "
+           "windows) on the same initial states, paired as above:"),
+          ("closed", ("nostra_mli", "nostra"), "against {b}, which sees the corrupted frames and imagines nothing "
+           "(what the noise costs without imagination), on the same initial states:"),
+          ("joint", ("rssm_li", "rssm"), "against {b} seeing the corrupted frames (imagination's gain or cost for "
+           "the joint latent), on the same initial states:"))
+CLEAN = {"nostra_mli": "nostra", "rssm_li": "rssm", "nostra_adamli": "nostra", "nostra": "nostra", "rssm": "rssm"}  # whose clean
+# run a path is measured from
 SETTING = re.compile(r"\d+-\d+(\+\d+-\d+)*")
+SHORT = {"nostra_adamli": "AdaMLI", "nostra_mli": "MLI", "nostra": "NOSTRA", "rssm_li": "LI", "rssm": "RSSM"}
 GAP, ALPHA = 0.10, 0.05  # the test stated in the README: MLI - LI >= 10 points with p < 0.05
 
 
@@ -118,9 +127,9 @@ def summary(df: pd.DataFrame, horizon: int) -> pd.DataFrame:
             d = (b.drift_cm - a.drift_cm).dropna()
             row |= {"drift_diff_cm": d.mean() if len(d) else np.nan, "drift_n": len(d),
                     "drift_p": wilcoxon(d).pvalue if len(d) and np.any(d != 0) else np.nan}
-        if all(v in cells for v in ADAPTIVE):
-            a, b = (cells[v] for v in ADAPTIVE)
-            row |= {f"ada_{k}": x for k, x in paired(a.success, b.success).items()}
+        for prefix, pair, _ in VERSUS:
+            if all(v in cells for v in pair):
+                row |= {f"{prefix}_{k}": x for k, x in paired(cells[pair[0]].success, cells[pair[1]].success).items()}
         rows.append(row)
     return pd.DataFrame(rows).sort_values("steps").reset_index(drop=True)
 
@@ -166,22 +175,22 @@ def markdown(s: pd.DataFrame, noise: str, header: list[str], reference_windows: 
     gap = [r for _, r in s.iterrows() if r.get("pair_diff", np.nan) >= GAP and r.get("pair_p", 1) < ALPHA]
     text += ["", f"Settings where {mli} beats {li} by >= {100 * GAP:.0f} points with p < {ALPHA}: "
              + (", ".join(_windows_text(r.setting) for r in gap) if gap else "none") + ".", ""]
-    return text + adaptive_table(s) + ["![success and drift per window setting](horizon.png)", ""]
+    versus = [line for prefix, pair, intro in VERSUS for line in versus_table(s, prefix, pair, intro)]
+    return text + versus + ["![success and drift per window setting](horizon.png)", ""]
 
 
-def adaptive_table(s: pd.DataFrame) -> list[str]:
-    """AdaMLI (the windows found from the KL) against the oracle MLI, where both ran."""
-    rows = s[s.ada_diff.notna()] if "ada_diff" in s else s.iloc[:0]
+def versus_table(s: pd.DataFrame, prefix: str, pair: tuple[str, str], intro: str) -> list[str]:
+    """One of VERSUS (a - b paired) over the settings where both ran; nothing where they did not."""
+    rows = s[s[f"{prefix}_diff"].notna()] if f"{prefix}_diff" in s else s.iloc[:0]
     if rows.empty:
         return []
-    ada, mli = (LABELS[v] for v in ADAPTIVE)
-    text = [f"{ada} decides from the KL where to imagine; against {mli} (told the windows) on the same initial "
-            "states, paired as above:", "",
-            f"| windows | {ada} | {mli} | AdaMLI - MLI | only AdaMLI / only MLI | p | drift AdaMLI (cm) |",
+    (a, b), (sa, sb) = (LABELS[v] for v in pair), (SHORT[v] for v in pair)
+    text = [f"{a} {intro.format(b=b)}", "",
+            f"| windows | {a} | {b} | {sa} - {sb} | only {sa} / only {sb} | p | drift {sa} (cm) |",
             "|---|---|---|---|---|---|---|"]
     for _, r in rows.iterrows():
-        text.append(f"| {_windows_text(r.setting)} | {_rate(r, ADAPTIVE[0])} | {_rate(r, ADAPTIVE[1])} | "
-                    f"{_pair(r, 'ada')} | {r.get(f'{ADAPTIVE[0]}_drift_cm', np.nan):.1f} |")
+        text.append(f"| {_windows_text(r.setting)} | {_rate(r, pair[0])} | {_rate(r, pair[1])} | "
+                    f"{_pair(r, prefix)} | {r.get(f'{pair[0]}_drift_cm', np.nan):.1f} |")
     return text + [""]
 
 
