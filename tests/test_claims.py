@@ -319,3 +319,22 @@ def test_seeds_report_one_training_seed_apart_from_the_others_on_disk(tmp_path):
     assert "- Training seeds: 0 (the others on this disk left out)" in (tmp_path / "out/claims.md").read_text()
     with pytest.raises(FileNotFoundError, match=r"for training seeds \[7\]"):
         write_report(tmp_path / "ev", tmp_path / "out7", seeds=[7])
+
+
+def test_diffusion_claim_has_its_own_bars(tmp_path):
+    _scenario(tmp_path, mli_mask=[True] * 10, lstm_mask=[False] * 10)
+    for seed in (0, 1):
+        _write(tmp_path, seed, "best", "none", "diffusion", [True] * 9 + [False])
+        _write(tmp_path, seed, "best", "mask", "diffusion", [False] * 10)
+        _write(tmp_path, seed, "best", "blind", "diffusion", [False] * 10)
+    df = load_records(tmp_path)
+    lines = "\n".join(verdicts(success_table(df), paired_table(df), "best"))
+    assert "| Diffusion Policy clean >= 85% (90%) | yes |" in lines
+    assert "| BC-NOSTRA + MLI above Diffusion Policy under mask with McNemar p < 0.05 (+100 points" in lines
+    assert lines.count("| shown |") == 4
+    for seed in (0, 1):  # a Diffusion Policy that did not learn: its claim alone is not testable
+        _write(tmp_path, seed, "best", "none", "diffusion", [True] * 3 + [False] * 7)
+    df = load_records(tmp_path)
+    lines = "\n".join(verdicts(success_table(df), paired_table(df), "best"))
+    assert "| Diffusion Policy clean >= 85% (30%) | no |" in lines and lines.count("| shown |") == 3
+    assert "above Diffusion Policy under mask with McNemar p < 0.05 (+100 points, p = 1.9e-06) | not testable (shown" in lines

@@ -275,11 +275,12 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
     rate = lambda v, n: s.rate.get((v, n), np.nan)  # noqa: E731
     p = pairs[(pairs.checkpoint == checkpoint) & (pairs.seed == seed)] if len(pairs) else pairs
 
-    def above(a: str, noise: str) -> tuple[str, bool, list]:  # a above BC-LSTM under noise, paired
-        row = p[(p.a == a) & (p.b == "lstm") & (p.noise == noise)] if len(p) else p
+    def above(a: str, noise: str, b: str = "lstm") -> tuple[str, bool, list]:  # a above b under noise, paired
+        row = p[(p.a == a) & (p.b == b) & (p.noise == noise)] if len(p) else p
         gain, pv = (row["diff"].iloc[0], row["p"].iloc[0]) if len(row) else (np.nan, np.nan)
         numbers = f"({gain * 100:+.0f} points, p = {pv:.2g})" if len(row) else "(–)"
-        return f"{LABELS[a]} above BC-LSTM under {noise} with McNemar p < 0.05 {numbers}", gain > 0 and pv < 0.05, [gain, pv]
+        return (f"{LABELS[a]} above {LABELS[b]} under {noise} with McNemar p < 0.05 {numbers}",
+                gain > 0 and pv < 0.05, [gain, pv])
 
     def within(a: str, noise: str) -> tuple[str, bool, list]:  # a under noise within 10 points of clean NOSTRA
         return (f"{LABELS[a]} under {noise} within {WITHIN:.0%} of its clean success "
@@ -309,17 +310,23 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
                             (f"AdaMLI within {WITHIN:.0%} of oracle MLI under mask ({percent(rate('nostra_adamli', 'mask'))} "
                              f"vs {percent(rate('nostra_mli', 'mask'))})",
                              abs(rate("nostra_adamli", "mask") - rate("nostra_mli", "mask")) <= WITHIN,
-                             [rate("nostra_adamli", "mask"), rate("nostra_mli", "mask")])])]
+                             [rate("nostra_adamli", "mask"), rate("nostra_mli", "mask")])], [])]
+        if not np.isnan(rate("diffusion", "none")):  # its own bars: a baseline that did not learn tests nothing
+            dp = [(f"Diffusion Policy clean >= {CLEAN_MIN:.0%} ({percent(rate('diffusion', 'none'))})",
+                   rate("diffusion", "none") >= CLEAN_MIN, [rate("diffusion", "none")]),
+                  (f"Diffusion Policy blind <= {BLIND_MAX:.0%} ({percent(rate('diffusion', 'blind'))})",
+                   rate("diffusion", "blind") <= BLIND_MAX, [rate("diffusion", "blind")])]
+            claims.append(("mask", [above("nostra_mli", "mask", "diffusion")], dp))
     if ran & set(TABLE2_NOISES):
-        claims += [(n, [within("nostra_adamli", n), above("nostra_adamli", n)]) for n in TABLE2_NOISES]
+        claims += [(n, [within("nostra_adamli", n), above("nostra_adamli", n)], []) for n in TABLE2_NOISES]
     measured = lambda xs: not any(np.isnan(x) for x in xs)  # noqa: E731
     holds = lambda row: row[1] and measured(row[2])  # noqa: E731
-    pre = base + [hurts(n) for n, _ in claims]
+    pre = base + [hurts(n) for n in dict.fromkeys(n for n, _, _ in claims)] + [r for _, _, extra in claims for r in extra]
     lines = ["| Precondition | holds |", "|---|---|"] + [
         f"| {t} | {('yes' if ok else 'no') if measured(xs) else 'not measured'} |" for t, ok, xs in pre]
     lines += ["", "| Claim | verdict |", "|---|---|"]
-    for noise, rows in claims:
-        testable = all(holds(r) for r in base) and holds(hurts(noise))
+    for noise, rows, extra in claims:
+        testable = all(holds(r) for r in base + extra) and holds(hurts(noise))
         for text, ok, xs in rows:
             if not measured(xs):
                 verdict = "not measured"
