@@ -445,8 +445,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=None,
                     help="only these training seeds (default: every s<seed> folder and earlier episode)")
     args = ap.parse_args(argv)
-    copied = sorted(str(p.relative_to(args.evaluations)) for p in args.evaluations.glob("s*/last/*/same-as-best")
-                    if args.seeds is None or int(p.relative_to(args.evaluations).parts[0][1:]) in args.seeds)
+    copied = [c for c in sorted(p.relative_to(args.evaluations) for p in args.evaluations.glob("s*/last/*/same-as-best"))
+              if args.seeds is None or int(c.parts[0][1:]) in args.seeds]
     extra = ["- Last checkpoint = best checkpoint (the final check was the best): those cells are the best "
              f"cells' records, copied, not re-run: {', '.join(f'`{c}`' for c in copied)}"] if copied else []
     if args.episodes:

@@ -70,8 +70,7 @@ def write_pool(reports: list[Path], seeds: list[int], out: Path, noise: str = "m
     df.to_csv(out / "episodes.csv", index=False)
     s.to_csv(out / "horizon.csv", index=False)
     figure(s, out / "horizon.png")
-    text = "\n".join(markdown(s, noise, header, reference_windows, df.episode))
-    text = text.replace("# Imagination over longer windows:", "# Imagination over longer windows, pooled:", 1)
+    text = "\n".join(markdown(s, noise, header, reference_windows, df.episode, pooled=True))
     (out / "horizon.md").write_text(text)
     return text
 

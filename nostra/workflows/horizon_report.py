@@ -44,8 +44,8 @@ VERSUS = (("ada", ("nostra_adamli", "nostra_mli"), "decides from the KL where to
            "(what the noise costs without imagination), on the same initial states:"),
           ("joint", ("rssm_li", "rssm"), "against {b} seeing the corrupted frames (imagination's gain or cost for "
            "the joint latent), on the same initial states:"))
-CLEAN = {"nostra_mli": "nostra", "rssm_li": "rssm", "nostra_adamli": "nostra", "nostra": "nostra", "rssm": "rssm"}  # whose clean
-# run a path is measured from
+# each variant's model, whose clean run its path's drift is measured from
+CLEAN = {"nostra_mli": "nostra", "rssm_li": "rssm", "nostra_adamli": "nostra", "nostra": "nostra", "rssm": "rssm"}
 SETTING = re.compile(r"\d+-\d+(\+\d+-\d+)*")
 SHORT = {"nostra_adamli": "AdaMLI", "nostra_mli": "MLI", "nostra": "NOSTRA", "rssm_li": "LI", "rssm": "RSSM"}
 GAP, ALPHA = 0.10, 0.05  # the test stated in the README: MLI - LI >= 10 points with p < 0.05
@@ -152,11 +152,11 @@ def _windows_text(name: str) -> str:
 
 
 def markdown(s: pd.DataFrame, noise: str, header: list[str], reference_windows: str | None,
-             episodes: pd.Series | None = None) -> list[str]:
+             episodes: pd.Series | None = None, pooled: bool = False) -> list[str]:
     mli, li = (LABELS[v] for v in PAIR)
     seeds = ([f"- Initial states: environment seeds {episodes.min()}-{episodes.max()} ({episodes.nunique()} distinct, "
               "the same in every cell)"] if episodes is not None and len(episodes) else [])
-    text = ["# Imagination over longer windows: per-modality vs joint-latent", "", *[h for h in header if h], *seeds, "",
+    text = [f"# Imagination over longer windows{', pooled' if pooled else ''}: per-modality vs joint-latent", "", *[h for h in header if h], *seeds, "",
             f"Oracle imagination over each setting's windows under `{noise}`: {mli} imagines the modalities "
             f"the noise corrupts and observes the rest, {li} imagines its joint latent (every modality). Success in % "
             "(95% Wilson interval) over the paired episodes (the same initial states in every cell); "
