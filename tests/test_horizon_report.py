@@ -139,3 +139,27 @@ def test_closed_loop_control_pairs_with_mli(tmp_path):
     s = summary(load(ev, ref, "5-10", "mask"), horizon=20).set_index("setting")
     assert s.loc["5-20"].closed_diff == pytest.approx(0.7) and s.loc["5-20"].closed_a_only == 14
     assert "| [5, 20) | 80 [58, 92] | 10 [3, 30] | +70 [+50, +90] | 14 / 0 | 0.00012 | 2.0 |" in report
+
+
+def test_adamli_imagination_of_the_corrupted_modality(tmp_path):
+    """AdaMLI's switch read from its records: of wrist_mask's noisy steps, the share imagined on the wrist
+    camera only (the agent view it should keep observing does not count), windows switched back, other steps."""
+    ev, ref = tmp_path / "horizon", tmp_path / "claims"
+    _write(ref / "none", "none", "nostra", [True] * 4)
+    rec = ev / "5-20" / "cell" / "records" / "LiftD1" / "wrist_mask"
+    rec.mkdir(parents=True)
+    noisy = np.zeros(20, bool)
+    noisy[5:20] = True
+    for k, start in enumerate((12, 12, 5, 20)):  # opens late (step 12) twice, on time once, never once
+        wrist = np.zeros(20, bool)
+        wrist[start:] = True
+        if k == 2:
+            wrist[15:] = False  # switched back before the window's end
+        np.savez_compressed(rec / f"nostra_adamli_seed{1000 + k}.npz", success=k < 2, steps=20, noise=noisy,
+                            eef_pos=np.zeros((20, 3), np.float32), **{"imagined/robot0_eye_in_hand_image": wrist,
+                            "imagined/agentview_image": np.ones(20, bool)})
+    s = summary(load(ev, ref, "5-10", "wrist_mask"), horizon=20).set_index("setting").loc["5-20"]
+    assert s.ada_recall == pytest.approx((8 + 8 + 10) / 60)  # not the agent view's 100%
+    assert s.ada_back == pytest.approx(1 / 4) and s.ada_outside == 0
+    report = write_report(ev, tmp_path / "out", "wrist_mask", ref, "5-10", horizon=20)
+    assert "| [5, 20) | 43% | 25% | 0% |" in report and "(`robot0_eye_in_hand_image`)" in report

@@ -15,7 +15,8 @@ the imagined steps both episodes reach, between its path and its own model's cle
 initial state (the paper's Figure 4 as a number), with the paired LI - MLI difference (Wilcoxon).
 Where BC-NOSTRA + AdaMLI or the closed-loop BC-NOSTRA or BC-RSSM ran too (scripts/cpu_horizon.sh's VARIANTS),
 AdaMLI - MLI (the windows found from the KL against told), MLI - NOSTRA and LI - BC-RSSM (what imagining
-saves over seeing the corrupted frames) paired.
+saves over seeing the corrupted frames) paired, and how much of the corrupted modalities' noisy steps AdaMLI
+imagined (claims.episode_imagination: its switch, read from the records).
 
     python -m nostra.workflows.horizon_report --evaluations data/runs/cpu/evaluate/liftd1-horizon/s2/mask \
         --reference data/runs/cpu/evaluate/liftd1/s2/best --reference-windows 15-35+45-60 \
@@ -32,7 +33,8 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 
-from nostra.workflows.claims import _cell, header_lines, paired, paired_cells
+from nostra.noise import NoiseSchedule
+from nostra.workflows.claims import _cell, episode_imagination, header_lines, paired, paired_cells
 from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
@@ -79,8 +81,18 @@ def drift_cm(imagined: Path, clean: Path | None) -> float:
     return float(np.linalg.norm(pa[steps] - pb[steps], axis=1).mean() * 100) if len(steps) else np.nan
 
 
+IMAGINATION = ("noisy", "hit", "windows", "early", "clean", "false")  # AdaMLI's counts kept per episode
+
+
+def adamli_counts(f: Path, noise: str) -> dict[str, int]:
+    """One AdaMLI record's episode_imagination counts summed over the modalities ``noise`` corrupts."""
+    keys = NoiseSchedule(noise, [(1, 2)]).keys
+    per = [c for m, c in episode_imagination(f).items() if m in keys]
+    return {f"imag_{k}": int(sum(c[k] for c in per)) for k in IMAGINATION}
+
+
 def load(evaluations: Path, reference: Path | None, reference_windows: str | None, noise: str) -> pd.DataFrame:
-    """One row per (setting, variant, episode): success and drift."""
+    """One row per (setting, variant, episode): success and drift (AdaMLI's: also its imagination counts)."""
     folders = {d.name: d for d in sorted(evaluations.iterdir()) if d.is_dir()} if evaluations.is_dir() else {}
     if reference is not None:
         if not reference_windows:
@@ -96,7 +108,8 @@ def load(evaluations: Path, reference: Path | None, reference_windows: str | Non
                 with np.load(f) as z:
                     success = bool(z["success"])
                 rows.append({"setting": name, "variant": variant, "episode": episode, "success": success,
-                             "drift_cm": drift_cm(f, cleans[variant].get(episode))})
+                             "drift_cm": drift_cm(f, cleans[variant].get(episode)),
+                             **(adamli_counts(f, noise) if variant == "nostra_adamli" else {})})
     if not rows:
         raise FileNotFoundError(f"no records of {', '.join(CLEAN)} under {noise!r} in {evaluations}"
                                 + (f" or {reference / noise}" if reference else ""))
@@ -130,6 +143,11 @@ def summary(df: pd.DataFrame, horizon: int) -> pd.DataFrame:
         for prefix, pair, _ in VERSUS:
             if all(v in cells for v in pair):
                 row |= {f"{prefix}_{k}": x for k, x in paired(cells[pair[0]].success, cells[pair[1]].success).items()}
+        if "imag_noisy" in g and "nostra_adamli" in cells:
+            t = cells["nostra_adamli"][[f"imag_{k}" for k in IMAGINATION]].sum()
+            ratio = lambda a, b: t[f"imag_{a}"] / t[f"imag_{b}"] if t[f"imag_{b}"] else np.nan  # noqa: E731
+            row |= {"ada_recall": ratio("hit", "noisy"), "ada_back": ratio("early", "windows"),
+                    "ada_outside": ratio("false", "clean")}
         rows.append(row)
     return pd.DataFrame(rows).sort_values("steps").reset_index(drop=True)
 
@@ -176,7 +194,24 @@ def markdown(s: pd.DataFrame, noise: str, header: list[str], reference_windows: 
     text += ["", f"Settings where {mli} beats {li} by >= {100 * GAP:.0f} points with p < {ALPHA}: "
              + (", ".join(_windows_text(r.setting) for r in gap) if gap else "none") + ".", ""]
     versus = [line for prefix, pair, intro in VERSUS for line in versus_table(s, prefix, pair, intro)]
-    return text + versus + ["![success and drift per window setting](horizon.png)", ""]
+    return text + versus + imagination_table(s, noise) + ["![success and drift per window setting](horizon.png)", ""]
+
+
+def imagination_table(s: pd.DataFrame, noise: str) -> list[str]:
+    """Where AdaMLI ran: the share of the corrupted modalities' noisy steps it imagined, of their windows it
+    switched back to observed before the end, and of their other steps it imagined."""
+    rows = s[s["ada_recall"].notna()] if "ada_recall" in s else s.iloc[:0]
+    if rows.empty:
+        return []
+    pct = lambda x: "–" if pd.isna(x) else f"{100 * x:.0f}%"  # noqa: E731
+    keys = ", ".join(f"`{k}`" for k in sorted(NoiseSchedule(noise, [(1, 2)]).keys))
+    text = [f"{LABELS['nostra_adamli']}'s switch on the modalities `{noise}` corrupts ({keys}), over all its "
+            "episodes (its detection starts after a warm-up of AdaMLIConfig.warmup steps):", "",
+            "| windows | noisy steps imagined | windows switched back before their end | other steps imagined |",
+            "|---|---|---|---|"]
+    for _, r in rows.iterrows():
+        text.append(f"| {_windows_text(r.setting)} | {pct(r.ada_recall)} | {pct(r.ada_back)} | {pct(r.ada_outside)} |")
+    return text + [""]
 
 
 def versus_table(s: pd.DataFrame, prefix: str, pair: tuple[str, str], intro: str) -> list[str]:
