@@ -11,6 +11,8 @@
 #   NOISE=wrist_mask WINDOWS="15-35+45-60;5-200" ...   # one camera lost: what per-modality imagination keeps
 #   VARIANTS=nostra_adamli NOISE=agentview_mask WINDOWS=5-200 ...   # AdaMLI too (paired with MLI in the report);
 #     variants other than the default go into <setting>/<variants>, so a setting run before is not taken for them
+#   ADAMLI="{warmup: 0}" VARIANTS="nostra_mli nostra_adamli" ...   # AdaMLI's settings changed (AdaMLIConfig's keys):
+#     its runs under <noise>-adamli-<settings> and its report apart (e.g. horizon-wrist_mask-s4-adamli-warmup0)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -20,10 +22,13 @@ WINDOWS=${WINDOWS:-15-65;15-200;5-200}
 NOISE=${NOISE:-mask}
 EPISODES=${EPISODES:-50}
 VARIANTS=${VARIANTS:-nostra_mli rssm_li}
+ADAMLI=${ADAMLI:-}
+TAG=$(echo "$ADAMLI" | tr -d ' {}:' | tr ',' '-')   # {warmup: 0, f_c: 12} -> warmup0-f_c12 (no comma: Hydra's list)
+ADA=(${ADAMLI:+"evaluate.variants.nostra_adamli.adamli=$ADAMLI"})
 source scripts/cpu_setup.sh   # OBS -> PROFILE, RUNS, REPORTS
 start=$(date +%s)
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
-ROOT=$RUNS/evaluate/$TASK-horizon/s$SEED/$NOISE
+ROOT=$RUNS/evaluate/$TASK-horizon/s$SEED/$NOISE${TAG:+-adamli-$TAG}
 drop=$(for v in lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli; do
   case " $VARIANTS " in *" $v "*) ;; *) printf 'evaluate.variants.%s=null ' $v ;; esac; done)
 IFS=';' read -ra SETTINGS <<< "$WINDOWS"
@@ -34,10 +39,10 @@ for setting in "${SETTINGS[@]}"; do
   windows="[$(echo "$setting" | sed -E 's/([0-9]+)-([0-9]+)/[\1,\2]/g; s/\+/,/g')]"   # 15-35+45-60 -> [[15,35],[45,60]]
   echo "[$(date +%H:%M:%S)] seed $SEED $NOISE windows $windows ($EPISODES episodes, $VARIANTS)"
   nostra evaluate profile=$PROFILE task=$TASK paths.runs=$RUNS seed=$SEED evaluate.checkpoint=best \
-    "evaluate.noises=[$NOISE]" evaluate.episodes=$EPISODES $drop "evaluate.windows={$NAME: $windows}" \
+    "evaluate.noises=[$NOISE]" evaluate.episodes=$EPISODES $drop "evaluate.windows={$NAME: $windows}" "${ADA[@]}" \
     evaluate.offline.enabled=false evaluate.out_dir=$out
 done
-OUT=${OUT:-$REPORTS/$TASK/horizon-$NOISE-s$SEED}
+OUT=${OUT:-$REPORTS/$TASK/horizon-$NOISE-s$SEED${TAG:+-adamli-$TAG}}
 TASK_WINDOWS=$(python -c "import yaml; w = yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows']; print('+'.join(f'{a}-{b}' for a, b in w))")
 HORIZON=$(python - <<PY
 from hydra import compose, initialize_config_dir
@@ -48,4 +53,4 @@ PY
 )
 python -m nostra.workflows.horizon_report --evaluations "$ROOT" --reference "$RUNS/evaluate/$TASK/s$SEED/best" \
   --reference-windows "$TASK_WINDOWS" --horizon "$HORIZON" --noise "$NOISE" --out "$OUT" --wall-seconds $(( $(date +%s) - start )) \
-  --command "OBS=$OBS TASK=$TASK SEED=$SEED WINDOWS=\"$WINDOWS\" NOISE=$NOISE EPISODES=$EPISODES VARIANTS=\"$VARIANTS\" OUT=$OUT bash scripts/cpu_horizon.sh"
+  --command "OBS=$OBS TASK=$TASK SEED=$SEED WINDOWS=\"$WINDOWS\" NOISE=$NOISE EPISODES=$EPISODES VARIANTS=\"$VARIANTS\"${ADAMLI:+ ADAMLI=\"$ADAMLI\"} OUT=$OUT bash scripts/cpu_horizon.sh"
