@@ -206,7 +206,7 @@ def imagination_table(s: pd.DataFrame, noise: str) -> list[str]:
     pct = lambda x: "–" if pd.isna(x) else f"{100 * x:.0f}%"  # noqa: E731
     keys = ", ".join(f"`{k}`" for k in sorted(NoiseSchedule(noise, [(1, 2)]).keys))
     text = [f"{LABELS['nostra_adamli']}'s switch on the modalities `{noise}` corrupts ({keys}), over all its "
-            "episodes (its detection starts after a warm-up of AdaMLIConfig.warmup steps):", "",
+            "episodes (its detection starts after AdaMLIConfig.warmup steps: 10 unless the command sets ADAMLI):", "",
             "| windows | noisy steps imagined | windows switched back before their end | other steps imagined |",
             "|---|---|---|---|"]
     for _, r in rows.iterrows():
