@@ -162,4 +162,5 @@ def test_adamli_imagination_of_the_corrupted_modality(tmp_path):
     assert s.ada_recall == pytest.approx((8 + 8 + 10) / 60)  # not the agent view's 100%
     assert s.ada_back == pytest.approx(1 / 4) and s.ada_outside == 0
     report = write_report(ev, tmp_path / "out", "wrist_mask", ref, "5-10", horizon=20)
-    assert "| [5, 20) | 43% | 25% | 0% |" in report and "(`robot0_eye_in_hand_image`)" in report
+    assert "| [5, 20) | 43.3% | 25.0% | 0.0% |" in report and "(`robot0_eye_in_hand_image`)" in report
+    assert "BC-RSSM + LI did not run here" in report and "MLI - LI" not in report  # no empty LI table

@@ -185,6 +185,10 @@ def markdown(s: pd.DataFrame, noise: str, header: list[str], reference_windows: 
                if reference_windows else ""), "",
             f"| windows | imagined steps | {mli} | {li} | MLI - LI | only MLI / only LI | p | drift MLI (cm) | "
             "drift LI (cm) | LI - MLI drift (cm), p |", "|---|---|---|---|---|---|---|---|---|---|"]
+    versus = [line for prefix, pair, intro in VERSUS for line in versus_table(s, prefix, pair, intro)]
+    tail = imagination_table(s, noise) + ["![success and drift per window setting](horizon.png)", ""]
+    if f"{PAIR[1]}_rate" not in s:  # the command's VARIANTS left LI out: only the pairs that ran
+        return text[:-2] + [f"{li} did not run here (the command's VARIANTS); the pairs that did:", ""] + versus + tail
     for _, r in s.iterrows():
         drift = (f"{r.drift_diff_cm:+.1f}, p = {r.drift_p:.2g}" if not pd.isna(r.get("drift_p")) else "–")
         text.append(f"| {_windows_text(r.setting)} | {r.steps} | {_rate(r, PAIR[0])} | {_rate(r, PAIR[1])} | "
@@ -193,8 +197,7 @@ def markdown(s: pd.DataFrame, noise: str, header: list[str], reference_windows: 
     gap = [r for _, r in s.iterrows() if r.get("pair_diff", np.nan) >= GAP and r.get("pair_p", 1) < ALPHA]
     text += ["", f"Settings where {mli} beats {li} by >= {100 * GAP:.0f} points with p < {ALPHA}: "
              + (", ".join(_windows_text(r.setting) for r in gap) if gap else "none") + ".", ""]
-    versus = [line for prefix, pair, intro in VERSUS for line in versus_table(s, prefix, pair, intro)]
-    return text + versus + imagination_table(s, noise) + ["![success and drift per window setting](horizon.png)", ""]
+    return text + versus + tail
 
 
 def imagination_table(s: pd.DataFrame, noise: str) -> list[str]:
@@ -203,7 +206,7 @@ def imagination_table(s: pd.DataFrame, noise: str) -> list[str]:
     rows = s[s["ada_recall"].notna()] if "ada_recall" in s else s.iloc[:0]
     if rows.empty:
         return []
-    pct = lambda x: "–" if pd.isna(x) else f"{100 * x:.0f}%"  # noqa: E731
+    pct = lambda x: "–" if pd.isna(x) else f"{100 * x:.1f}%"  # noqa: E731
     keys = ", ".join(f"`{k}`" for k in sorted(NoiseSchedule(noise, [(1, 2)]).keys))
     text = [f"{LABELS['nostra_adamli']}'s switch on the modalities `{noise}` corrupts ({keys}), over all its "
             "episodes (its detection starts after AdaMLIConfig.warmup steps: 10 unless the command sets ADAMLI):", "",
