@@ -182,7 +182,7 @@ def markdown(s: pd.DataFrame, noise: str, header: list[str], reference_windows: 
             "the mean end-effector distance (cm), over the imagined steps both episodes reach, from the same "
             "model's clean run from the same initial state; LI - MLI paired, Wilcoxon p."
             + (f" The row {_windows_text(reference_windows)} is the task's windows (the claims cells)."
-               if reference_windows else ""), "",
+               if reference_windows in set(s.setting) else ""), "",
             f"| windows | imagined steps | {mli} | {li} | MLI - LI | only MLI / only LI | p | drift MLI (cm) | "
             "drift LI (cm) | LI - MLI drift (cm), p |", "|---|---|---|---|---|---|---|---|---|---|"]
     versus = [line for prefix, pair, intro in VERSUS for line in versus_table(s, prefix, pair, intro)]
