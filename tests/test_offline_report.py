@@ -127,6 +127,28 @@ def test_a_sweep_without_the_papers_setting_is_paired_with_make_cpu_claims_cells
     assert not (tmp_path / "out2").exists()  # checked before anything is written
 
 
+def test_one_setting_apart_from_the_papers_is_paired_with_make_cpu_claims_cells(tmp_path):
+    """f_c = 12 the sweep's only analysis (nothing varies among its rows, but it is not the paper's f_c):
+    still a sensitivity row, and its rollouts paired with the claims' AdaMLI (f_c = 3) and MLI cells."""
+    _analysis(tmp_path / "runs", "s4-fo20-fc12/mask", "mask", "a.ckpt", {"cam": 1.0}, adamli={"f_o": 20.0, "f_c": 12.0})
+    _records(tmp_path / "rollouts/s4-fo20-fc12/mask/records/LiftD1/mask", "nostra_adamli", wins=4)
+    claims = tmp_path / "evaluate/liftd1/s4/best"
+    _records(claims / "mask/nostra+nostra_mli+nostra_adamli/records/LiftD1/mask", "nostra_adamli", wins=1)
+    _records(claims / "mask/nostra+nostra_mli+nostra_adamli/records/LiftD1/mask", "nostra_mli", wins=4)
+    main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--no-figures",
+          "--rollouts", str(tmp_path / "rollouts"), "--reference", str(claims)])
+    pairs = pd.read_csv(tmp_path / "out/adamli_paired.csv")
+    assert list(pairs.against) == ["paper's thresholds", "oracle MLI"] and list(pairs["diff"]) == [0.75, 0.0]
+    assert "| 4 | 12 | mask | paper's thresholds | 4 | +75 [+25, +100] | 3 / 0 | 0.25 |" in (tmp_path / "out/offline.md").read_text()
+
+
+def test_analyses_at_the_papers_thresholds_make_no_sensitivity_table(tmp_path):
+    _analysis(tmp_path / "runs", "s4-fo20-fc3/mask", "mask", "a.ckpt", {"cam": 1.0}, adamli={"f_o": 20, "f_c": 3.0})
+    main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--no-figures"])
+    assert "sensitivity" not in (tmp_path / "out/offline.md").read_text()
+    assert not (tmp_path / "out/adamli_sweep.csv").exists()
+
+
 def test_sweep_rollouts_say_how_adamli_switched_beside_the_papers_cells(tmp_path):
     """Per setting and rollout noise, the windows AdaMLI switched back inside; the paper's setting comes
     from make cpu-claims' AdaMLI records of the same checkpoint (named s<seed>-fo20-fc3)."""

@@ -13,6 +13,7 @@ demos both analysed (nostra.workflows.views: Table 3)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import re
 import shutil
@@ -235,12 +236,16 @@ def _varied(sweep: pd.DataFrame) -> list[str]:
 
 def sweep_table(analyses: list[dict]) -> pd.DataFrame:
     """One row per analysis with AdaMLI's thresholds and its detection over every modality: the
-    threshold sensitivity when the analyses differ in their thresholds (empty otherwise)."""
+    threshold sensitivity when the analyses differ in their thresholds, or from the paper's (one setting
+    alone, e.g. f_c = 12, then paired with make cpu-claims' cells); empty otherwise."""
+    from nostra.policies.imagination import AdaMLIConfig
+
     rows = [{"analysis": a["name"], "noise": a["noise"], **a["adamli"], "precision": a["detect"]["all"]["precision"],
              "recall": a["detect"]["all"]["recall"], "false_imagination": a["false_imagination"]["all"]}
             for a in analyses if "adamli" in a and "detect" in a]
     params = {k for r in rows for k in r} - {"analysis", "noise", "precision", "recall", "false_imagination"}
-    varied = [k for k in sorted(params) if len({r.get(k) for r in rows}) > 1]
+    paper = dataclasses.asdict(AdaMLIConfig())
+    varied = [k for k in sorted(params) if len({r.get(k) for r in rows}) > 1 or {r.get(k) for r in rows} != {paper.get(k)}]
     if not varied:
         return pd.DataFrame()
     return pd.DataFrame(rows).sort_values(["noise", *varied]).reset_index(drop=True)[
