@@ -5,7 +5,8 @@
 # blind (no camera all episode) -> reports/cpu/<task>/index.md.
 #
 # Every step is resumable: generation skips a finished file, ingest is idempotent, training
-# continues from last.ckpt (a finished run ends at once), so a killed run continues where it stopped.
+# continues from last.ckpt (a finished run ends at once), so a killed run continues where it stopped;
+# a run with nothing left to train or evaluate keeps the report (command, wall time) of the run that made it.
 #   TASK=stackd1 MINUTES=60 HORIZON=300 SEEDS="0 1" MODELS="lstm nostra" make cpu
 #   OBS=rgbd make cpu    # the policies see agentview depth too (profile cpu_rgbd, Table 2), in data/runs/cpu-rgbd
 #   CAPACITY=matched MODELS="lstm rssm nostra" make cpu   # BC-LSTM and BC-RSSM at NOSTRA's parameter count
@@ -25,6 +26,7 @@ source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
 OUT=${CPU_OUT:-$REPORTS/$TASK}   # CPU_OUT: elsewhere (a seed run alone, its siblings' runs not on this disk)
 COMMON="profile=$PROFILE task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
 start=$(date +%s)
+ran=0   # set when this run trained or evaluated something: otherwise the report of the run that did is kept
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
 collection ${TASK}_cpu $TASK
@@ -52,7 +54,7 @@ for seed in $SEEDS; do
       minutes=${DP_MINUTES:-$MINUTES}
       extra="${DP_STEPS:+profile.dp_total_steps=$DP_STEPS}${DP_CHECK_EVERY:+ train.rollout.every=$DP_CHECK_EVERY}"
     fi
-    log "train $model seed $seed ($minutes min budget${width:+, $width}${extra:+, $extra})"
+    log "train $model seed $seed ($minutes min budget${width:+, $width}${extra:+, $extra})"; ran=1
     nostra train $COMMON model=$model seed=$seed "data.collections=[${TASK}_cpu]" train.max_minutes=$minutes \
       "train.rollout.modes=[closed]" $width $extra
   done
@@ -87,14 +89,17 @@ for seed in $SEEDS; do
       mkdir -p "$(dirname "$out")" && cp -r "$best" "$out"
       echo "Every model's last checkpoint is its best (the final check was the best): a copy of best/$noise." \
         > "$out/SAME_AS_BEST.txt"
-      log "evaluate seed $seed last $noise: the same checkpoints as best, its records copied"; continue
+      log "evaluate seed $seed last $noise: the same checkpoints as best, its records copied"; ran=1; continue
     fi
-    log "evaluate seed $seed checkpoint=$ck noise=$noise"
+    log "evaluate seed $seed checkpoint=$ck noise=$noise"; ran=1
     nostra evaluate $COMMON seed=$seed evaluate.checkpoint=$ck "evaluate.noises=[$noise]" $(variants "$noise") \
       evaluate.offline.enabled=false evaluate.out_dir=$out
   done
 done
 
+if [ $ran = 0 ] && [ -f "$OUT/index.md" ]; then
+  log "nothing new to train or evaluate: $OUT/index.md kept (its command and wall time are the run's that made it)"; exit 0
+fi
 python -m nostra.workflows.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
   --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY make cpu" \
   --wall-seconds $(( $(date +%s) - start ))
