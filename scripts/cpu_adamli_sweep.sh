@@ -11,6 +11,7 @@
 #   ROLLOUT_NOISES="none mask" EPISODES=50 F_O="5 20 80" F_C=3 bash scripts/cpu_adamli_sweep.sh
 # OBS=rgbd sweeps the Table 2 policy (make cpu-claims OBS=rgbd), e.g. f_c under zeroed proprioception:
 #   OBS=rgbd NOISE=proprio_zero ROLLOUT_NOISES="none proprio_zero" F_O=20 F_C="3 6 12" bash scripts/cpu_adamli_sweep.sh
+# WARMUP=0 runs the settings with AdaMLI's warm-up changed (its own settings, -w0, beside the others).
 # OUT=<folder> writes the report there instead of $REPORTS/<task>/adamli_sweep (e.g. one per training seed).
 # Where make cpu-claims has evaluated the same best checkpoint, each setting's rollouts are also paired with
 # its cells (the paper's AdaMLI, the oracle MLI and BC-LSTM under the same noise, the clean closed loop).
@@ -24,6 +25,7 @@ F_C=${F_C:-1.5 3 6}
 NOISE=${NOISE:-mask}
 ROLLOUT_NOISES=${ROLLOUT_NOISES-none mask}
 EPISODES=${EPISODES:-50}
+WARMUP=${WARMUP:-}   # AdaMLI's warm-up in steps (empty: AdaMLIConfig's 10); a setting's name then ends -w<steps>
 source scripts/cpu_setup.sh   # OBS -> PROFILE, RUNS, REPORTS
 ROOT=$RUNS/offline/$TASK-adamli
 ROLLOUTS=$RUNS/evaluate/$TASK-adamli
@@ -32,22 +34,23 @@ WINDOWS=$(python -c "import yaml; print(yaml.safe_load(open('conf/task/$TASK.yam
 drop=$(for v in lstm diffusion rssm rssm_li nostra nostra_mli; do printf 'evaluate.variants.%s=null ' $v; done)
 for fo in $F_O; do
   for fc in $F_C; do
-    out=$ROOT/s$SEED-fo$fo-fc$fc/$NOISE
+    setting=s$SEED-fo$fo-fc$fc${WARMUP:+-w$WARMUP} ada="{f_o: $fo, f_c: $fc${WARMUP:+, warmup: $WARMUP}}"
+    out=$ROOT/$setting/$NOISE
     if [ -f "$out/offline/offline.json" ]; then echo "f_o=$fo f_c=$fc: done before, kept"; else
       echo "[$(date +%H:%M:%S)] offline seed $SEED $NOISE f_o=$fo f_c=$fc"
       nostra evaluate profile=$PROFILE task=$TASK paths.runs=$RUNS seed=$SEED evaluate.rollouts=false \
         evaluate.offline.checkpoint=$RUNS/train/pretrain-nostra-$NAME-s$SEED/checkpoints/best.ckpt \
         "evaluate.offline.collections=[${TASK}_cpu]" evaluate.offline.noise=$NOISE evaluate.offline.episodes=20 \
-        "evaluate.offline.windows=$WINDOWS" "evaluate.offline.adamli={f_o: $fo, f_c: $fc}" \
+        "evaluate.offline.windows=$WINDOWS" "evaluate.offline.adamli=$ada" \
         evaluate.offline.setting=good_view evaluate.out_dir=$out
     fi
     for noise in $ROLLOUT_NOISES; do
-      out=$ROLLOUTS/s$SEED-fo$fo-fc$fc/$noise
+      out=$ROLLOUTS/$setting/$noise
       [ -f "$out/success.csv" ] && { echo "rollouts f_o=$fo f_c=$fc $noise: done before, kept"; continue; }
       echo "[$(date +%H:%M:%S)] rollouts seed $SEED $noise f_o=$fo f_c=$fc ($EPISODES episodes)"
       nostra evaluate profile=$PROFILE task=$TASK paths.runs=$RUNS seed=$SEED evaluate.checkpoint=best \
         "evaluate.noises=[$noise]" evaluate.episodes=$EPISODES $drop \
-        "evaluate.variants.nostra_adamli.adamli={f_o: $fo, f_c: $fc}" evaluate.offline.enabled=false evaluate.out_dir=$out
+        "evaluate.variants.nostra_adamli.adamli=$ada" evaluate.offline.enabled=false evaluate.out_dir=$out
     done
   done
 done
@@ -56,4 +59,4 @@ CLAIMS=$RUNS/evaluate/$TASK/s$SEED/best
 reference=(); [ -d "$CLAIMS" ] && reference=(--reference "$CLAIMS")
 python -m nostra.workflows.offline_report --analyses "$ROOT" --out "$OUT" --no-figures \
   --rollouts "$ROLLOUTS" "${reference[@]}" \
-  --command "OBS=$OBS TASK=$TASK SEED=$SEED F_O=\"$F_O\" F_C=\"$F_C\" NOISE=$NOISE ROLLOUT_NOISES=\"$ROLLOUT_NOISES\" EPISODES=$EPISODES OUT=$OUT bash scripts/cpu_adamli_sweep.sh"
+  --command "OBS=$OBS TASK=$TASK SEED=$SEED F_O=\"$F_O\" F_C=\"$F_C\" NOISE=$NOISE ROLLOUT_NOISES=\"$ROLLOUT_NOISES\" EPISODES=$EPISODES${WARMUP:+ WARMUP=$WARMUP} OUT=$OUT bash scripts/cpu_adamli_sweep.sh"
