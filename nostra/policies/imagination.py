@@ -17,7 +17,8 @@ recall on the traces of ``bench/adamli_traces.py`` falls to 0.3-0.9.
 Choices the paper leaves open:
 * a decision needs at least ``min_changes`` changes since the last switch; the average runs over
   up to k of them;
-* detection starts ``warmup`` steps into an episode (the first steps carry h_0's transient);
+* detection starts ``warmup`` steps into an episode (the first steps carry h_0's transient), so a
+  corruption already there by then shows no jump and is never imagined (README: warm-up 0 mended it);
 * r is floored at ``eps`` so a perfectly flat KL series does not fire on round-off.
 
 Limits, measured: the thresholds assume a KL that moves smoothly from step to step, as on
