@@ -84,9 +84,8 @@ def drift_cm(imagined: Path, clean: Path | None) -> float:
 IMAGINATION = ("noisy", "hit", "windows", "early", "clean", "false")  # AdaMLI's counts kept per episode
 
 
-def adamli_counts(f: Path, noise: str) -> dict[str, int]:
-    """One AdaMLI record's episode_imagination counts summed over the modalities ``noise`` corrupts."""
-    keys = NoiseSchedule(noise, [(1, 2)]).keys
+def adamli_counts(f: Path, keys: set[str]) -> dict[str, int]:
+    """One AdaMLI record's episode_imagination counts summed over the modalities ``keys`` (those a noise corrupts)."""
     per = [c for m, c in episode_imagination(f).items() if m in keys]
     return {f"imag_{k}": int(sum(c[k] for c in per)) for k in IMAGINATION}
 
@@ -101,6 +100,7 @@ def load(evaluations: Path, reference: Path | None, reference_windows: str | Non
     for name in folders:
         parse_setting(name)
     cleans = {v: _records(reference / "none", "none", m) if reference else {} for v, m in CLEAN.items()}
+    corrupted = NoiseSchedule(noise, []).keys
     rows = []
     for name, folder in folders.items():
         for variant in CLEAN:
@@ -109,7 +109,7 @@ def load(evaluations: Path, reference: Path | None, reference_windows: str | Non
                     success = bool(z["success"])
                 rows.append({"setting": name, "variant": variant, "episode": episode, "success": success,
                              "drift_cm": drift_cm(f, cleans[variant].get(episode)),
-                             **(adamli_counts(f, noise) if variant == "nostra_adamli" else {})})
+                             **(adamli_counts(f, corrupted) if variant == "nostra_adamli" else {})})
     if not rows:
         raise FileNotFoundError(f"no records of {', '.join(CLEAN)} under {noise!r} in {evaluations}"
                                 + (f" or {reference / noise}" if reference else ""))
@@ -207,7 +207,7 @@ def imagination_table(s: pd.DataFrame, noise: str) -> list[str]:
     if rows.empty:
         return []
     pct = lambda x: "–" if pd.isna(x) else f"{100 * x:.1f}%"  # noqa: E731
-    keys = ", ".join(f"`{k}`" for k in sorted(NoiseSchedule(noise, [(1, 2)]).keys))
+    keys = ", ".join(f"`{k}`" for k in sorted(NoiseSchedule(noise, []).keys))
     text = [f"{LABELS['nostra_adamli']}'s switch on the modalities `{noise}` corrupts ({keys}), over all its "
             "episodes (its detection starts after AdaMLIConfig.warmup steps: 10 unless the command sets ADAMLI):", "",
             "| windows | noisy steps imagined | windows switched back before their end | other steps imagined |",
