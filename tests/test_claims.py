@@ -144,6 +144,11 @@ def test_header_states_the_command_and_notes(tmp_path, capsys):
     text = (tmp_path / "out/claims.md").read_text()
     assert "- Command: `CAPACITY=matched make cpu-claims`" in text and "- Capacity-matched: model.net.rnn_hidden=457" in text
     assert "- Initial states: environment seeds 1000-1009 (10 distinct:" in text  # from the records' names
+    main(["--evaluations", str(tmp_path / "ev"), "--out", str(tmp_path / "out"), "--command", "NOISES=mask make cpu-claims",
+          "--wall-seconds", "300"])  # a second piece: the header names both commands
+    text = (tmp_path / "out/claims.md").read_text()
+    assert "  1. `CAPACITY=matched make cpu-claims` (finished " in text and "- Command:" not in text
+    assert "  2. `NOISES=mask make cpu-claims` (finished " in text and "- Wall time of the commands: 5 min (1 of 2 timed)" in text
 
 
 def test_adamli_detection_per_modality_and_gripper_phase(tmp_path):

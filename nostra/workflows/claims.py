@@ -422,15 +422,20 @@ def write_report(evaluations: Path, out: Path, header: list[str] = (), earlier: 
 
 
 def header_lines(evaluations: Path, command: str | None, wall_seconds: float | None, notes: list[str],
-                 extra: list[str] = ()) -> list[str]:
-    """A report's header: the command, the machine, the evaluations, ``extra`` lines, the wall time, notes."""
+                 extra: list[str] = (), out: Path | None = None) -> list[str]:
+    """A report's header: the command(s), the machine, the evaluations, ``extra`` lines, notes. With ``out``
+    the command joins the report folder's log (command_log) and the header names every command in it."""
+    from nostra.workflows.command_log import command_header, header
     from nostra.workflows.cpu_report import machine
 
-    header = [f"- Command: `{command}`"] if command else []
-    header += [f"- Machine: {machine()}", f"- Evaluations: `{evaluations}`", *extra]
-    if wall_seconds:
-        header.append(f"- Wall time of the command: {wall_seconds / 60:.0f} min")
-    return header + [f"- {n}" for n in notes] + [""]
+    if out is not None:
+        commands = command_header(out, command, wall_seconds)
+    else:
+        commands = header([{"command": command, "wall_seconds": wall_seconds}] if command else [])
+    wall = [c for c in commands if c.startswith("- Wall time")]
+    head = [c for c in commands if c not in wall]
+    return head + [f"- Machine: {machine()}", f"- Evaluations: `{evaluations}`", *extra, *wall] \
+        + [f"- {n}" for n in notes] + [""]
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -453,7 +458,7 @@ def main(argv: list[str] | None = None) -> None:
         extra.append(f"- Episodes read from earlier reports too: {', '.join(f'`{p}`' for p in args.episodes)}")
     if args.seeds is not None:
         extra.append(f"- Training seeds: {', '.join(map(str, args.seeds))} (the others on this disk left out)")
-    header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note, extra)
+    header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note, extra, out=args.out)
     print(write_report(args.evaluations, args.out, header, args.episodes, args.seeds))
 
 

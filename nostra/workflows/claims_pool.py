@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from nostra.workflows import claims, transfer_report
+from nostra.workflows.command_log import command_header
 from nostra.workflows.evaluation import wilson
 
 
@@ -197,7 +198,7 @@ def main(argv: list[str] | None = None) -> None:
                     help="pool only these training seeds (e.g. the ones that ran a model the others did not)")
     ap.add_argument("--command", default=None, help="the command that wrote this report (for the header)")
     args = ap.parse_args(argv)
-    header = [f"- Command: `{args.command}`"] if args.command else []
+    header = command_header(args.out, args.command)
     print(write_pooled(args.reports, args.out, header, args.seeds))
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import pandas as pd
 
 from nostra.sim.tasks import get_task
+from nostra.workflows.command_log import command_header
 from nostra.workflows.variants import LABELS
 
 
@@ -160,9 +161,9 @@ def recipe_main(argv: list[str]) -> None:
     args = ap.parse_args(argv)
     ev = Path(args.evaluations)
     found = {name: episode_successes(ev / name) for _, name, _, _ in RECIPE if (ev / name).is_dir()}
+    commands = command_header(Path(args.out).with_suffix(".commands.jsonl"), args.command, args.wall_seconds)
     lines = [f"# Which switches of the CPU recipe move success ({get_task(args.task).name})", "",
-             f"- Command: `{args.command}`", f"- Machine: {machine()}",
-             f"- Wall time: {args.wall_seconds / 60:.0f} min" if args.wall_seconds else "- Wall time: -",
+             *commands, f"- Machine: {machine()}",
              f"- Training runs compared at the same step ({args.steps}); clean rollouts on the evaluation seeds, "
              "the same for every row", "",
              "| Setting | success % [95% CI] | difference (points) |", "|---|---|---|"]
@@ -206,11 +207,13 @@ def main(argv: list[str] | None = None) -> None:
     train_lines, curves = training_rows(runs, task, args.seeds, args.models)
     curve_figure(curves, out / "learning_curves.png")
     episodes = int(df["episodes"].max()) if len(df) else 0
-    wall = f"{args.wall_seconds / 60:.0f} min" if args.wall_seconds else "see the training table"
+    commands = command_header(out, args.command, args.wall_seconds)
+    if not any(c.startswith("- Wall time") for c in commands):
+        commands.append("- Wall time of the command: see the training table")
     copies = sorted(str(p.parent.relative_to(runs / "evaluate" / args.task))
                     for p in (runs / "evaluate" / args.task).glob("s*/last/*/SAME_AS_BEST.txt"))
     text = [f"# CPU profile: {task}", "",
-            f"- Command: `{args.command}`", f"- Machine: {machine()}", f"- Wall time of the command: {wall}",
+            *commands, f"- Machine: {machine()}",
             f"- Training seeds: {', '.join(map(str, args.seeds))}; demos: expert seeds from 0; "
             f"rollouts: seeds 1000-{1000 + max(episodes, 1) - 1} (never used by demos), the same for every variant",
             *([f"- Last = best checkpoint for every model (the final check was the best): "

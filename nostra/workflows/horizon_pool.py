@@ -64,7 +64,7 @@ def write_pool(reports: list[Path], seeds: list[int], out: Path, noise: str = "m
              + ", ".join(f"`{r}`" for r in reports) + "): one paired unit per (training seed, episode)"]
     if left_out:
         extra.append("- Not in every seed's report, so not pooled: " + ", ".join(map(_windows_text, left_out)))
-    header = header_lines(reports[0].parent, command, None, [], extra)
+    header = header_lines(reports[0].parent, command, None, [], extra, out=out)
     header = [h for h in header if not h.startswith("- Evaluations:")]  # read from reports, not records
     out.mkdir(parents=True, exist_ok=True)
     df.to_csv(out / "episodes.csv", index=False)

@@ -283,7 +283,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--command", default=None)
     ap.add_argument("--wall-seconds", type=float, default=None)
     args = ap.parse_args(argv)
-    header = header_lines(args.evaluations, args.command, args.wall_seconds, [])
+    header = header_lines(args.evaluations, args.command, args.wall_seconds, [], out=args.out)
     print(write_report(args.evaluations, args.out, args.noise, args.reference, args.reference_windows,
                        args.horizon, header))
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from nostra.workflows.command_log import command_header
 from nostra.workflows.views import figure as views_figure
 from nostra.workflows.views import markdown as views_markdown
 from nostra.workflows.views import traces_figure, training_changes
@@ -283,11 +284,12 @@ def _score(x) -> str:
     return "– (not noised)" if pd.isna(x) else f"{x:.2f}"
 
 
-def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str, figures: dict[str, str] | None = None,
+def markdown(kl: pd.DataFrame, detect: pd.DataFrame, command: str | list[str], figures: dict[str, str] | None = None,
              sweep: pd.DataFrame | None = None, pairs: pd.DataFrame | None = None,
              changes: pd.DataFrame | None = None, traces: bool = False, demos: str = "held-out",
              batches: pd.DataFrame | None = None, pooled: pd.DataFrame | None = None) -> str:
-    lines = [f"# Where the nats go, and what AdaMLI detects (offline, {demos} demos)", "", f"`{command}`", "",
+    said = [f"`{command}`"] if isinstance(command, str) else command  # one command, or the log's header lines
+    lines = [f"# Where the nats go, and what AdaMLI detects (offline, {demos} demos)", "", *said, "",
              f"## Per-modality KL on the clean {demos} demos (Table 3)", "",
              f"Mean KL per step in nats, 95% t-interval over the {demos} episodes, share of the total.", ""]
     for ckpt, g in kl.groupby("checkpoint", sort=False):
@@ -377,7 +379,8 @@ def main(argv: list[str] | None = None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     kl.to_csv(args.out / "kl.csv", index=False)
     detect.to_csv(args.out / "detection.csv", index=False)
-    command = args.command or f"python -m nostra.workflows.offline_report --analyses {args.analyses} --out {args.out}"
+    command = command_header(args.out, args.command) or \
+        f"python -m nostra.workflows.offline_report --analyses {args.analyses} --out {args.out}"
     figures, sweep = ({} if args.no_figures else copy_figures(analyses, args.out)), sweep_table(analyses)
     changes, traces, batches = view_changes(analyses), False, training_changes(analyses)
     pooled = pooled_changes(analyses)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 INDEX = "index.md"
 COMMAND = re.compile(r"^(?:- Command: )?`([^`]+)`")
+LOGGED = re.compile(r"^\s+\d+\. `([^`]+)`")  # one of several commands (a report's command log, command_log)
 WALL = re.compile(r"^- Wall time[^:]*: (.+)$")
 MACHINE = re.compile(r"^- Machine: (.+)$")
 TRAINING_SEEDS = re.compile(r"^- Training seeds: ([0-9, ]*[0-9])")  # a report whose command names no SEEDS=
@@ -25,6 +26,9 @@ def describe(path: Path) -> dict:
     if not lines or not lines[0].startswith("# "):
         raise ValueError(f"{path}: a report starts with a '# ' title line, found {lines[:1]!r}")
     info = {"title": lines[0][2:].strip(), "command": "", "wall": "", "machine": "", "listed": ""}
+    logged = [m[1] for m in map(LOGGED.match, lines[1:60]) if m]
+    if logged:
+        info["command"] = "; then ".join(logged)
     for line in lines[1:40]:
         for key, pattern in (("command", COMMAND), ("wall", WALL), ("machine", MACHINE), ("listed", TRAINING_SEEDS)):
             m = pattern.match(line)

@@ -193,18 +193,20 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--command", default="")
     ap.add_argument("--wall-seconds", type=float, default=None)
     args = ap.parse_args(argv)
+    from nostra.workflows.command_log import command_header
     from nostra.workflows.cpu_report import machine
 
     table = sweep_table(args.evaluations, args.offline)
     pairs = paired_table(args.evaluations)
-    header = [f"- Command: `{args.command}`" if args.command else f"- Evaluations: `{args.evaluations}`",
-              f"- Machine: {machine()}"]
+    commands = command_header(args.out, args.command, args.wall_seconds)
+    wall = [c for c in commands if c.startswith("- Wall time")]
+    header = [c for c in commands if c not in wall] or [f"- Evaluations: `{args.evaluations}`"]
+    header.append(f"- Machine: {machine()}")
     ep = episodes(args.evaluations)
     if len(ep):
         per_cell = "/".join(str(n) for n in sorted(ep.groupby(["setting", "noise", "variant"]).size().unique()))
         header.append(f"- Episodes: {per_cell} per cell, initial-state seeds {ep.episode.min()}-{ep.episode.max()}")
-    if args.wall_seconds:
-        header.append(f"- Wall time of the command: {args.wall_seconds / 60:.0f} min")
+    header += wall
     args.out.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out / "sweep.csv", index=False)
     pairs.to_csv(args.out / "paired.csv", index=False)

@@ -227,7 +227,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--wall-seconds", type=float, default=None)
     ap.add_argument("--note", action="append", default=[], help="a line for the header")
     args = ap.parse_args(argv)
-    header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note)
+    header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note, out=args.out)
     print(write_report(args.evaluations, args.out, header, args.target_demos))
 
 
