@@ -51,6 +51,8 @@ with initialize_config_dir(CONF_DIR, version_base="1.3"):
     print(compose("config", overrides=["profile=$PROFILE", "task=$TASK"]).evaluate.horizon)
 PY
 )
+# AdaMLI's settings changed: the claims cells' AdaMLI (the paper's) is not this study's, so it is not read
+EXCLUDE=(${ADAMLI:+--reference-excludes nostra_adamli})
 python -m nostra.workflows.horizon_report --evaluations "$ROOT" --reference "$RUNS/evaluate/$TASK/s$SEED/best" \
-  --reference-windows "$TASK_WINDOWS" --horizon "$HORIZON" --noise "$NOISE" --out "$OUT" --wall-seconds $(( $(date +%s) - start )) \
+  --reference-windows "$TASK_WINDOWS" "${EXCLUDE[@]}" --horizon "$HORIZON" --noise "$NOISE" --out "$OUT" --wall-seconds $(( $(date +%s) - start )) \
   --command "OBS=$OBS TASK=$TASK SEED=$SEED WINDOWS=\"$WINDOWS\" NOISE=$NOISE EPISODES=$EPISODES VARIANTS=\"$VARIANTS\"${ADAMLI:+ ADAMLI=\"$ADAMLI\"} OUT=$OUT bash scripts/cpu_horizon.sh"

@@ -86,6 +86,18 @@ def test_a_setting_run_here_wins_over_the_claims_cell(tmp_path):
     assert not len(df[(df.setting == "5-10") & (df.variant == "rssm_li")])  # not mixed with the claims cell's
 
 
+def test_a_changed_adamli_is_not_read_from_the_claims_cell(tmp_path):
+    """AdaMLI run here with other settings: the claims cell's (the paper's) AdaMLI is left out at the
+    task's windows, its MLI kept; an unknown variant names the valid ones."""
+    ev, ref = _scenario(tmp_path)
+    _write(ref / "mask", "mask", "nostra_adamli", [True] * 20, [(5, 10)], 0.01)
+    assert len(load(ev, ref, "5-10", "mask").query("variant == 'nostra_adamli'")) == 20
+    df = load(ev, ref, "5-10", "mask", ("nostra_adamli",))
+    assert "nostra_adamli" not in set(df.variant) and len(df.query("setting == '5-10' and variant == 'nostra_mli'")) == 20
+    with pytest.raises(ValueError, match="--reference-excludes adamli: unknown variant; valid: nostra_mli, rssm_li"):
+        load(ev, ref, "5-10", "mask", ("adamli",))
+
+
 def test_pool_over_seeds_pairs_by_seed_and_episode(tmp_path):
     from nostra.workflows.horizon_pool import write_pool
 

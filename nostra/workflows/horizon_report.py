@@ -90,13 +90,21 @@ def adamli_counts(f: Path, keys: set[str]) -> dict[str, int]:
     return {f"imag_{k}": int(sum(c[k] for c in per)) for k in IMAGINATION}
 
 
-def load(evaluations: Path, reference: Path | None, reference_windows: str | None, noise: str) -> pd.DataFrame:
-    """One row per (setting, variant, episode): success and drift (AdaMLI's: also its imagination counts)."""
+def load(evaluations: Path, reference: Path | None, reference_windows: str | None, noise: str,
+         reference_excludes: tuple[str, ...] = ()) -> pd.DataFrame:
+    """One row per (setting, variant, episode): success and drift (AdaMLI's: also its imagination counts).
+    ``reference_excludes``: variants not read from the reference's noise cell (run with other settings
+    there, e.g. the paper's AdaMLI where this study changed AdaMLI's thresholds)."""
+    unknown = sorted(set(reference_excludes) - set(CLEAN))
+    if unknown:
+        raise ValueError(f"--reference-excludes {', '.join(unknown)}: unknown variant; valid: {', '.join(CLEAN)}")
     folders = {d.name: d for d in sorted(evaluations.iterdir()) if d.is_dir()} if evaluations.is_dir() else {}
+    from_reference = None
     if reference is not None:
         if not reference_windows:
             raise ValueError("--reference needs --reference-windows (the task's windows, e.g. 15-35+45-60)")
-        folders.setdefault(reference_windows, reference / noise)  # a setting run here wins over the claims cell
+        if reference_windows not in folders:  # a setting run here wins over the claims cell
+            folders[reference_windows] = from_reference = reference / noise
     for name in folders:
         parse_setting(name)
     cleans = {v: _records(reference / "none", "none", m) if reference else {} for v, m in CLEAN.items()}
@@ -104,6 +112,8 @@ def load(evaluations: Path, reference: Path | None, reference_windows: str | Non
     rows = []
     for name, folder in folders.items():
         for variant in CLEAN:
+            if folder == from_reference and variant in reference_excludes:
+                continue
             for episode, f in _records(folder, noise, variant).items():
                 with np.load(f) as z:
                     success = bool(z["success"])
@@ -259,8 +269,9 @@ def figure(s: pd.DataFrame, path: Path) -> None:
 
 
 def write_report(evaluations: Path, out: Path, noise: str = "mask", reference: Path | None = None,
-                 reference_windows: str | None = None, horizon: int = 200, header: list[str] = ()) -> str:
-    df = load(evaluations, reference, reference_windows, noise)
+                 reference_windows: str | None = None, horizon: int = 200, header: list[str] = (),
+                 reference_excludes: tuple[str, ...] = ()) -> str:
+    df = load(evaluations, reference, reference_windows, noise, tuple(reference_excludes))
     s = summary(df, horizon)
     out.mkdir(parents=True, exist_ok=True)
     df.to_csv(out / "episodes.csv", index=False)
@@ -279,13 +290,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--reference", type=Path, default=None,
                     help="<runs>/evaluate/<task>/s<seed>/best: the claims cells (task's windows, clean runs)")
     ap.add_argument("--reference-windows", default=None, help="the reference's windows, e.g. 15-35+45-60")
+    ap.add_argument("--reference-excludes", nargs="+", default=[],
+                    help="variants not read from the reference's noise cell (e.g. nostra_adamli when AdaMLI's "
+                         "settings here differ from the claims cells')")
     ap.add_argument("--horizon", type=int, default=200, help="the rollout horizon (caps a window's imagined steps)")
     ap.add_argument("--command", default=None)
     ap.add_argument("--wall-seconds", type=float, default=None)
     args = ap.parse_args(argv)
     header = header_lines(args.evaluations, args.command, args.wall_seconds, [], out=args.out)
     print(write_report(args.evaluations, args.out, args.noise, args.reference, args.reference_windows,
-                       args.horizon, header))
+                       args.horizon, header, args.reference_excludes))
 
 
 if __name__ == "__main__":
