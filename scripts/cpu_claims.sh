@@ -104,7 +104,11 @@ if [ "$CAPACITY" = matched ]; then  # the widths the runs were trained with, in 
     python -m nostra.workflows.capacity --profile $PROFILE --task $TASK --override $m ;; esac; done | tr '\n' ' ')
   note=(--note "Capacity-matched: BC-LSTM and BC-RSSM at BC-NOSTRA's parameter count (${widths% }); BC-NOSTRA as configured")
 fi
-python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" "${note[@]}" "${APART[@]}" \
+# the report's own earlier episodes stay in it (records win): cells run on another machine, whose records are
+# not on this disk, are not lost when this run adds a model or a noise (delete episodes.csv to drop them)
+EARLIER=()
+[ -f "$OUT/episodes.csv" ] && EARLIER=(--episodes "$OUT/episodes.csv")
+python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" "${note[@]}" "${APART[@]}" "${EARLIER[@]}" \
   --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY NOISES=\"$NOISES\" CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/claims.md"
