@@ -422,20 +422,14 @@ def write_report(evaluations: Path, out: Path, header: list[str] = (), earlier: 
 
 
 def header_lines(evaluations: Path, command: str | None, wall_seconds: float | None, notes: list[str],
-                 extra: list[str] = (), out: Path | None = None) -> list[str]:
-    """A report's header: the command(s), the machine, the evaluations, ``extra`` lines, notes. With ``out``
-    the command joins the report folder's log (command_log) and the header names every command in it."""
-    from nostra.workflows.command_log import command_header, header
+                 extra: list[str] = (), *, out: Path) -> list[str]:
+    """A report's header: the command(s), the machine, the evaluations, ``extra`` lines, notes. The command
+    joins the report folder's log (command_log) and the header names every command in it."""
+    from nostra.workflows.command_log import command_header
     from nostra.workflows.cpu_report import machine
 
-    if out is not None:
-        commands = command_header(out, command, wall_seconds)
-    else:
-        commands = header([{"command": command, "wall_seconds": wall_seconds}] if command else [])
-    wall = [c for c in commands if c.startswith("- Wall time")]
-    head = [c for c in commands if c not in wall]
-    return head + [f"- Machine: {machine()}", f"- Evaluations: `{evaluations}`", *extra, *wall] \
-        + [f"- {n}" for n in notes] + [""]
+    return [*command_header(out, command, wall_seconds), f"- Machine: {machine()}", f"- Evaluations: `{evaluations}`",
+            *extra, *[f"- {n}" for n in notes], ""]
 
 
 def main(argv: list[str] | None = None) -> None:

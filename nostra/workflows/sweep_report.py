@@ -198,15 +198,12 @@ def main(argv: list[str] | None = None) -> None:
 
     table = sweep_table(args.evaluations, args.offline)
     pairs = paired_table(args.evaluations)
-    commands = command_header(args.out, args.command, args.wall_seconds)
-    wall = [c for c in commands if c.startswith("- Wall time")]
-    header = [c for c in commands if c not in wall] or [f"- Evaluations: `{args.evaluations}`"]
+    header = command_header(args.out, args.command, args.wall_seconds) or [f"- Evaluations: `{args.evaluations}`"]
     header.append(f"- Machine: {machine()}")
     ep = episodes(args.evaluations)
     if len(ep):
         per_cell = "/".join(str(n) for n in sorted(ep.groupby(["setting", "noise", "variant"]).size().unique()))
         header.append(f"- Episodes: {per_cell} per cell, initial-state seeds {ep.episode.min()}-{ep.episode.max()}")
-    header += wall
     args.out.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out / "sweep.csv", index=False)
     pairs.to_csv(args.out / "paired.csv", index=False)
