@@ -11,6 +11,7 @@
 #   OBS=rgbd make cpu    # the policies see agentview depth too (profile cpu_rgbd, Table 2), in data/runs/cpu-rgbd
 #   CAPACITY=matched MODELS="lstm rssm nostra" make cpu   # BC-LSTM and BC-RSSM at NOSTRA's parameter count
 #   SEEDS=2 CPU_OUT=reports/cpu/liftd1/claims-s2/cpu make cpu   # the report elsewhere, not over seeds 0-1's
+#   TASK=stack DEMOS=1000 MODELS=nostra MINUTES=60 make cpu   # 1000 demos (the paper's for MimicGen's tasks)
 #   MODELS=diffusion DP_MINUTES=90 DP_STEPS=14000 DP_CHECK_EVERY=2000 make cpu   # Diffusion Policy's own budget:
 #     its cosine spans DP_STEPS (what DP_MINUTES buys here), an in-training check every DP_CHECK_EVERY steps
 set -euo pipefail
@@ -29,7 +30,7 @@ start=$(date +%s)
 ran=0   # set when this run trained or evaluated something: otherwise the report of the run that did is kept
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
-collection ${TASK}_cpu $TASK
+demo_collections $TASK   # -> COLLECTIONS
 
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 for seed in $SEEDS; do
@@ -55,7 +56,7 @@ for seed in $SEEDS; do
       extra="${DP_STEPS:+profile.dp_total_steps=$DP_STEPS}${DP_CHECK_EVERY:+ train.rollout.every=$DP_CHECK_EVERY}"
     fi
     log "train $model seed $seed ($minutes min budget${width:+, $width}${extra:+, $extra})"; ran=1
-    nostra train $COMMON model=$model seed=$seed "data.collections=[${TASK}_cpu]" train.max_minutes=$minutes \
+    nostra train $COMMON model=$model seed=$seed "data.collections=[$COLLECTIONS]" train.max_minutes=$minutes \
       "train.rollout.modes=[closed]" $width $extra
   done
 done
@@ -101,6 +102,6 @@ if [ $ran = 0 ] && [ -f "$OUT/index.md" ]; then
   log "nothing new to train or evaluate: $OUT/index.md kept (its command and wall time are the run's that made it)"; exit 0
 fi
 python -m nostra.workflows.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY make cpu" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS} make cpu" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/index.md"

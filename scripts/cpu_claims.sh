@@ -39,7 +39,7 @@ EVAL=$RUNS/evaluate/$TASK
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
-TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES HORIZON=$HORIZON OBS=$OBS CAPACITY=$CAPACITY CPU_OUT=$CPU_OUT bash scripts/cpu.sh
+TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES HORIZON=$HORIZON OBS=$OBS CAPACITY=$CAPACITY DEMOS=$DEMOS CPU_OUT=$CPU_OUT bash scripts/cpu.sh
 
 # the variants each noise needs: under none an imagining variant is its closed-loop policy (nothing to
 # imagine), under clean_windows the closed-loop ones see clean frames (= none); blind keeps the
@@ -109,6 +109,6 @@ fi
 EARLIER=()
 [ -f "$OUT/episodes.csv" ] && EARLIER=(--episodes "$OUT/episodes.csv")
 python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" "${note[@]}" "${APART[@]}" "${EARLIER[@]}" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY NOISES=\"$NOISES\" CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS} NOISES=\"$NOISES\" CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/claims.md"

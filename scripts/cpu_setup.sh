@@ -2,10 +2,14 @@
 #   OBS=rgb (two cameras + proprioception: Table 1; default) | rgbd (+ agentview depth: Table 2, profile cpu_rgbd)
 #   CAPACITY=configured (default) | matched (BC-LSTM's and BC-RSSM's widths give NOSTRA's parameter count,
 #            nostra.workflows.capacity; NOSTRA, the reference, is the configured run, linked, not retrained)
-# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched]) and REPORTS (reports/cpu[-rgbd][-matched]);
-# defines collection and same_as_best.
+#   DEMOS=<n> demos to train on (default: the profile's demos_per_task, 200); more adds a second collection
+#            of the other n - 200 (episode seeds from 10000: apart from the first demos' and the evaluation's,
+#            1000...) and gives the study its own runs and reports (data/runs/cpu-d<n>, reports/cpu-d<n>)
+# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>]) and REPORTS (reports/cpu[...]);
+# defines collection, demo_collections and same_as_best.
 OBS=${OBS:-rgb}
 CAPACITY=${CAPACITY:-configured}
+DEMOS=${DEMOS:-}
 case $OBS in
   rgb) PROFILE=cpu SUFFIX="" ;;
   rgbd) PROFILE=cpu_rgbd SUFFIX=-rgbd ;;
@@ -16,6 +20,16 @@ case $CAPACITY in
   matched) SUFFIX=$SUFFIX-matched ;;
   *) echo "$0: unknown CAPACITY=$CAPACITY; valid: configured, matched" >&2; exit 2 ;;
 esac
+if [ -n "$DEMOS" ]; then
+  BASE_DEMOS=$(python -c "
+from hydra import compose, initialize_config_dir
+from pipeline._hydra import CONF_DIR
+with initialize_config_dir(CONF_DIR, version_base='1.3'):
+    print(compose('config', overrides=['profile=$PROFILE']).profile.demos_per_task)")
+  [[ $DEMOS =~ ^[0-9]+$ ]] && [ "$DEMOS" -gt "$BASE_DEMOS" ] ||
+    { echo "$0: DEMOS=$DEMOS must be a whole number above the profile's demos_per_task ($BASE_DEMOS)" >&2; exit 2; }
+  SUFFIX=$SUFFIX-d$DEMOS
+fi
 RUNS=data/runs/cpu$SUFFIX
 REPORTS=reports/cpu$SUFFIX
 
@@ -37,4 +51,15 @@ collection() {  # $1 = collection, $2 = task, $3... = generate overrides
     nostra generate profile=$PROFILE task=$task generate.collection=$name "$@"; }
   if [ -d "data/store.zarr/$name" ]; then echo "[$(date +%H:%M:%S)] ingest $raw: the store has $name"
   else echo "[$(date +%H:%M:%S)] ingest $raw"; nostra ingest profile=$PROFILE "ingest.sources=[$raw]" ingest.progress=false; fi
+}
+
+# the task's training collections in the store, made if missing; sets COLLECTIONS (comma-separated)
+demo_collections() {  # $1 = task
+  collection ${1}_cpu $1
+  COLLECTIONS=${1}_cpu
+  if [ -n "$DEMOS" ]; then
+    local more=$(( DEMOS - BASE_DEMOS ))
+    collection ${1}_cpu_plus$more $1 generate.episodes=$more generate.seed_offset=10000
+    COLLECTIONS=$COLLECTIONS,${1}_cpu_plus$more
+  fi
 }

@@ -1,0 +1,37 @@
+"""scripts/cpu_setup.sh, sourced by the CPU-profile scripts: where a study lives and which demos it trains on."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def setup(env: dict, body: str) -> subprocess.CompletedProcess:
+    """Source cpu_setup.sh with `env`, `collection` replaced by an echo (nothing generated), then run body."""
+    path = f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"
+    script = f'source scripts/cpu_setup.sh; collection() {{ echo "collection $*"; }}; {body}'
+    return subprocess.run(["bash", "-c", script], cwd=ROOT, capture_output=True, text=True,
+                          env={**os.environ, "PATH": path, **env})
+
+
+def test_more_demos_add_a_collection_with_seeds_apart_and_a_study_of_their_own():
+    r = setup({"DEMOS": "1000"}, 'demo_collections stack; echo "$COLLECTIONS $RUNS $REPORTS"')
+    assert r.returncode == 0, r.stderr
+    made, last = r.stdout.splitlines()[:-1], r.stdout.splitlines()[-1]
+    assert made == ["collection stack_cpu stack",
+                    "collection stack_cpu_plus800 stack generate.episodes=800 generate.seed_offset=10000"]
+    assert last == "stack_cpu,stack_cpu_plus800 data/runs/cpu-d1000 reports/cpu-d1000"
+
+
+def test_the_profiles_demos_by_default():
+    r = setup({"OBS": "rgbd"}, 'demo_collections lift; echo "$COLLECTIONS $RUNS"')
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines() == ["collection lift_cpu lift", "lift_cpu data/runs/cpu-rgbd"]
+
+
+def test_a_demo_count_not_above_the_profiles_is_refused_naming_it():
+    for bad in ("150", "200", "many"):
+        r = setup({"DEMOS": bad}, "echo reached")
+        assert r.returncode == 2 and "reached" not in r.stdout
+        assert f"DEMOS={bad}" in r.stderr and "demos_per_task (200)" in r.stderr
