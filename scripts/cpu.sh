@@ -30,7 +30,7 @@ start=$(date +%s)
 ran=0   # set when this run trained or evaluated something: otherwise the report of the run that did is kept
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
-demo_collections $TASK   # -> COLLECTIONS
+demo_collections $TASK   # -> COLLECTIONS, DEMO_SEEDS
 
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 for seed in $SEEDS; do
@@ -102,6 +102,7 @@ if [ $ran = 0 ] && [ -f "$OUT/index.md" ]; then
   log "nothing new to train or evaluate: $OUT/index.md kept (its command and wall time are the run's that made it)"; exit 0
 fi
 python -m nostra.workflows.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
+  --demos "$DEMO_SEEDS" \
   --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS} make cpu" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/index.md"

@@ -53,13 +53,15 @@ collection() {  # $1 = collection, $2 = task, $3... = generate overrides
   else echo "[$(date +%H:%M:%S)] ingest $raw"; nostra ingest profile=$PROFILE "ingest.sources=[$raw]" ingest.progress=false; fi
 }
 
-# the task's training collections in the store, made if missing; sets COLLECTIONS (comma-separated)
+# the task's training collections in the store, made if missing; sets COLLECTIONS (comma-separated) and
+# DEMO_SEEDS (where they came from, for the report)
 demo_collections() {  # $1 = task
   collection ${1}_cpu $1
-  COLLECTIONS=${1}_cpu
+  COLLECTIONS=${1}_cpu DEMO_SEEDS="expert seeds from 0"
   if [ -n "$DEMOS" ]; then
     local more=$(( DEMOS - BASE_DEMOS ))
     collection ${1}_cpu_plus$more $1 generate.episodes=$more generate.seed_offset=10000
     COLLECTIONS=$COLLECTIONS,${1}_cpu_plus$more
+    DEMO_SEEDS="$DEMOS in all, expert seeds from 0 (${1}_cpu) and from 10000 (${1}_cpu_plus$more)"
   fi
 }

@@ -23,7 +23,8 @@ def test_cpu_report(tmp_path):
     _success(runs / "evaluate/liftd1/s0/last", [("none", "lstm", 7)])
     run = runs / "train/pretrain-lstm-LiftD1-s0"
     run.mkdir(parents=True)
-    (run / "run.json").write_text(json.dumps({"steps": 3000, "wall_seconds": 1800}))
+    (run / "run.json").write_text(json.dumps({"steps": 3000, "wall_seconds": 1800, "train_episodes": 180,
+                                              "val_episodes": 20}))
     (run / "rollouts.json").write_text(json.dumps([
         {"step": 1000, "episodes": 10, "score": 0.6, "seconds": 60},
         {"step": 2000, "episodes": 10, "score": 0.9, "seconds": 60},
@@ -32,15 +33,17 @@ def test_cpu_report(tmp_path):
     cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--out", str(out), "--wall-seconds", "3600"])
     text = (out / "index.md").read_text()
     assert "| 0 | BC-LSTM | 90 [10, 90] | 70 [10, 90] | 10 [10, 90] |" in text
-    assert "cameras imagined" in text and "| 0 | BC-NOSTRA | – | – | – | – | not trained |" in text
-    assert "| 0 | BC-LSTM | 3000 | 30.0 | 5.0 (17%) | 3 | 2000 (90%, 10) |" in text
+    assert "cameras imagined" in text and "| 0 | BC-NOSTRA | – | – | – | – | – | not trained |" in text
+    assert "| 0 | BC-LSTM | 180 + 20 | 3000 | 30.0 | 5.0 (17%) | 3 | 2000 (90%, 10) |" in text
+    assert "demos: expert seeds from 0;" in text
     assert (out / "learning_curves.png").stat().st_size > 0
     assert "copies the best cell" not in text
 
     (runs / "evaluate/liftd1/s0/last/none").mkdir(parents=True)  # scripts/cpu.sh's copy when last = best
     (runs / "evaluate/liftd1/s0/last/none/SAME_AS_BEST.txt").write_text("a copy")
-    cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--out", str(out)])
-    assert "`s0/last/none` copies the best cell, not a second run" in (out / "index.md").read_text()
+    cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--out", str(out), "--demos", "seeds from 0 and 10000"])
+    text = (out / "index.md").read_text()
+    assert "`s0/last/none` copies the best cell, not a second run" in text and "demos: seeds from 0 and 10000;" in text
 
 
 def _records(folder, successes):

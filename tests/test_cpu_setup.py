@@ -16,11 +16,12 @@ def setup(env: dict, body: str) -> subprocess.CompletedProcess:
 
 
 def test_more_demos_add_a_collection_with_seeds_apart_and_a_study_of_their_own():
-    r = setup({"DEMOS": "1000"}, 'demo_collections stack; echo "$COLLECTIONS $RUNS $REPORTS"')
+    r = setup({"DEMOS": "1000"}, 'demo_collections stack; echo "$DEMO_SEEDS"; echo "$COLLECTIONS $RUNS $REPORTS"')
     assert r.returncode == 0, r.stderr
-    made, last = r.stdout.splitlines()[:-1], r.stdout.splitlines()[-1]
+    *made, seeds, last = r.stdout.splitlines()
     assert made == ["collection stack_cpu stack",
                     "collection stack_cpu_plus800 stack generate.episodes=800 generate.seed_offset=10000"]
+    assert seeds == "1000 in all, expert seeds from 0 (stack_cpu) and from 10000 (stack_cpu_plus800)"
     assert last == "stack_cpu,stack_cpu_plus800 data/runs/cpu-d1000 reports/cpu-d1000"
 
 

@@ -66,14 +66,14 @@ def success_table(df: pd.DataFrame) -> list[str]:
 
 
 def training_rows(runs: Path, task_name: str, seeds: list[int], models: list[str]) -> tuple[list[str], dict]:
-    lines = ["| Seed | Model | steps | wall (min) | rollouts (min, share) | checks | best step (success, episodes) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| Seed | Model | demos (train + held out) | steps | wall (min) | rollouts (min, share) | checks "
+             "| best step (success, episodes) |", "|---|---|---|---|---|---|---|---|"]
     curves = {}
     for seed in seeds:
         for m in models:
             run = runs / "train" / f"pretrain-{m}-{task_name}-s{seed}"
             if not (run / "run.json").is_file():
-                lines.append(f"| {seed} | {LABELS.get(m, m)} | – | – | – | – | not trained |")
+                lines.append(f"| {seed} | {LABELS.get(m, m)} | – | – | – | – | – | not trained |")
                 continue
             info = json.loads((run / "run.json").read_text())
             checks = json.loads((run / "rollouts.json").read_text()) if (run / "rollouts.json").is_file() else []
@@ -82,7 +82,8 @@ def training_rows(runs: Path, task_name: str, seeds: list[int], models: list[str
             spent = sum(c.get("seconds", 0) for c in checks)
             best = max(checks, key=lambda c: (c["score"], c["step"]), default=None)
             best_s = f"{best['step']} ({100 * best['score']:.0f}%, {best['episodes']})" if best else "–"
-            lines.append(f"| {seed} | {LABELS.get(m, m)} | {info['steps']} | {wall / 60:.1f} | "
+            demos = (f"{info['train_episodes']} + {info['val_episodes']}" if "train_episodes" in info else "–")
+            lines.append(f"| {seed} | {LABELS.get(m, m)} | {demos} | {info['steps']} | {wall / 60:.1f} | "
                          f"{spent / 60:.1f} ({100 * spent / wall:.0f}%) | {len(checks)} | {best_s} |")
     return lines, curves
 
@@ -197,6 +198,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", required=True)
     ap.add_argument("--command", default="make cpu")
     ap.add_argument("--wall-seconds", type=float, default=None)
+    ap.add_argument("--demos", default="expert seeds from 0", help="where the training demos came from")
     args = ap.parse_args(argv)
     task = get_task(args.task).name  # unknown task -> the valid ones
     runs, out = Path(args.runs), Path(args.out)
@@ -214,7 +216,7 @@ def main(argv: list[str] | None = None) -> None:
                     for p in (runs / "evaluate" / args.task).glob("s*/last/*/SAME_AS_BEST.txt"))
     text = [f"# CPU profile: {task}", "",
             *commands, f"- Machine: {machine()}",
-            f"- Training seeds: {', '.join(map(str, args.seeds))}; demos: expert seeds from 0; "
+            f"- Training seeds: {', '.join(map(str, args.seeds))}; demos: {args.demos}; "
             f"rollouts: seeds 1000-{1000 + max(episodes, 1) - 1} (never used by demos), the same for every variant",
             *([f"- Last = best checkpoint for every model (the final check was the best): "
                f"{', '.join(f'`{c}`' for c in copies)} copies the best cell, not a second run"] if copies else []),
