@@ -42,6 +42,7 @@ PAIRS = [("nostra_mli", "nostra", TABLE1_NOISES[1:]), ("nostra_mli", "lstm", TAB
     ("nostra_adamli", b, TABLE2_NOISES + DIAGNOSTIC_NOISES) for b in ("nostra", "lstm", "diffusion", "rssm")]
 CLEAN_MIN, BLIND_MAX, WITHIN = 0.85, 0.20, 0.10  # the issue's bars: clean >= 85%, blind <= 20%, within 10 points
 POOLED = "pooled"
+RECORDS = "s*/*/**/records/*/*/*_seed*.npz"  # <evaluations>/s<seed>/<checkpoint>/.../<task>/<noise>/<variant>_seed<n>.npz
 
 
 def _cell_of(f: Path, evaluations: Path) -> tuple[int, str, str]:
@@ -58,7 +59,7 @@ def load_records(evaluations: Path) -> pd.DataFrame:
     """One row per episode: seed (training), checkpoint, noise, variant, episode, success, and for
     clean episodes the share of steps on which any modality was imagined."""
     rows = {}
-    for f in sorted(evaluations.glob("s*/*/**/records/*/*/*_seed*.npz")):
+    for f in sorted(evaluations.glob(RECORDS)):
         variant, episode = f.stem.rsplit("_seed", 1)
         with np.load(f) as z:
             imagined = [z[k] for k in z.files if k.startswith("imagined/")]

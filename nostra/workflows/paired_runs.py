@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from nostra.workflows.claims import header_lines, load_records, paired
+from nostra.workflows.claims import RECORDS, header_lines, load_records, paired
 from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
@@ -27,7 +27,7 @@ def labelled(arg: str) -> tuple[str, Path]:
     if not sep or not label or not folder:
         raise argparse.ArgumentTypeError(f"{arg!r}: expected LABEL=<runs>/evaluate/<task>")
     path = Path(folder)
-    if not any(path.glob("s*/*/**/records/*/*/*_seed*.npz")):
+    if not any(path.glob(RECORDS)):
         raise argparse.ArgumentTypeError(f"{path}: no episode records (s<seed>/<checkpoint>/.../records/"
                                          "<task>/<noise>/<variant>_seed<n>.npz) under it")
     return label, path

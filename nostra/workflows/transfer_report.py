@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nostra.workflows.claims import POOLED, _with_pooled, header_lines, paired, paired_cells
+from nostra.workflows.claims import POOLED, RECORDS, _with_pooled, header_lines, paired, paired_cells
 from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
@@ -42,7 +42,7 @@ def setting_name(folder: str) -> str:
 def load_records(evaluations: Path) -> pd.DataFrame:
     """One row per episode: seed (training), setting, variant, episode, success."""
     rows = {}
-    for f in sorted(evaluations.glob("s*/*/**/records/*/*/*_seed*.npz")):
+    for f in sorted(evaluations.glob(RECORDS)):
         seed_dir = next(p for p in f.parents if p.parent == evaluations)
         setting = setting_name(f.relative_to(seed_dir).parts[0])
         variant, episode = f.stem.rsplit("_seed", 1)
