@@ -12,6 +12,8 @@
 #   CAPACITY=matched MODELS="lstm rssm nostra" make cpu   # BC-LSTM and BC-RSSM at NOSTRA's parameter count
 #   SEEDS=2 CPU_OUT=reports/cpu/liftd1/claims-s2/cpu make cpu   # the report elsewhere, not over seeds 0-1's
 #   TASK=stack DEMOS=1000 MODELS=nostra MINUTES=60 make cpu   # 1000 demos (the paper's for MimicGen's tasks)
+#   TASK=liftd1 SEEDS=4 MODELS=rssm STEPS=3268 make cpu   # a step budget too (train.max_steps): match a run
+#     trained on another machine, whose minutes bought a different number of steps
 #   MODELS=diffusion DP_MINUTES=90 DP_STEPS=14000 DP_CHECK_EVERY=2000 make cpu   # Diffusion Policy's own budget:
 #     its cosine spans DP_STEPS (what DP_MINUTES buys here), an in-training check every DP_CHECK_EVERY steps
 set -euo pipefail
@@ -21,6 +23,7 @@ TASK=${TASK:-liftd1}
 SEEDS=${SEEDS:-0}
 MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
+STEPS=${STEPS:-}   # empty: the minutes alone end training
 HORIZON=${HORIZON:-}   # rollout horizon in steps; empty: the profile's (200, enough for Lift)
 DP_MINUTES=${DP_MINUTES:-} DP_STEPS=${DP_STEPS:-} DP_CHECK_EVERY=${DP_CHECK_EVERY:-}
 source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
@@ -57,7 +60,7 @@ for seed in $SEEDS; do
     fi
     log "train $model seed $seed ($minutes min budget${width:+, $width}${extra:+, $extra})"; ran=1
     nostra train $COMMON model=$model seed=$seed "data.collections=[$COLLECTIONS]" train.max_minutes=$minutes \
-      "train.rollout.modes=[closed]" $width $extra
+      "train.rollout.modes=[closed]" ${STEPS:+train.max_steps=$STEPS} $width $extra
   done
 done
 
@@ -103,6 +106,6 @@ if [ $ran = 0 ] && [ -f "$OUT/index.md" ]; then
 fi
 python -m nostra.workflows.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
   --demos "$DEMO_SEEDS" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS} make cpu" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${STEPS:+ STEPS=$STEPS}${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS} make cpu" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/index.md"

@@ -5,11 +5,14 @@
 #   DEMOS=<n> demos to train on (default: the profile's demos_per_task, 200); more adds a second collection
 #            of the other n - 200 (episode seeds from 10000: apart from the first demos' and the evaluation's,
 #            1000...) and gives the study its own runs and reports (data/runs/cpu-d<n>, reports/cpu-d<n>)
+#   STEPS=<n> (optional) a whole number of training steps, checked here for the scripts that take one
 # Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>]) and REPORTS (reports/cpu[...]);
 # defines collection, demo_collections and same_as_best.
 OBS=${OBS:-rgb}
 CAPACITY=${CAPACITY:-configured}
 DEMOS=${DEMOS:-}
+[ -z "${STEPS:-}" ] || [[ $STEPS =~ ^[1-9][0-9]*$ ]] ||
+  { echo "$0: STEPS=$STEPS must be a whole number of training steps above 0" >&2; exit 2; }
 case $OBS in
   rgb) PROFILE=cpu SUFFIX="" ;;
   rgbd) PROFILE=cpu_rgbd SUFFIX=-rgbd ;;

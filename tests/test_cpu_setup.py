@@ -36,3 +36,11 @@ def test_a_demo_count_not_above_the_profiles_is_refused_naming_it():
         r = setup({"DEMOS": bad}, "echo reached")
         assert r.returncode == 2 and "reached" not in r.stdout
         assert f"DEMOS={bad}" in r.stderr and "demos_per_task (200)" in r.stderr
+
+
+def test_a_step_budget_that_is_not_a_whole_number_is_refused_naming_it():
+    for bad in ("0", "3e3", "-5"):
+        r = setup({"STEPS": bad}, "echo reached")
+        assert r.returncode == 2 and "reached" not in r.stdout
+        assert f"STEPS={bad}" in r.stderr
+    assert setup({"STEPS": "3268"}, "echo reached").stdout == "reached\n"
