@@ -58,7 +58,7 @@ for seed in $SEEDS; do
       minutes=${DP_MINUTES:-$MINUTES}
       extra="${DP_STEPS:+profile.dp_total_steps=$DP_STEPS}${DP_CHECK_EVERY:+ train.rollout.every=$DP_CHECK_EVERY}"
     fi
-    log "train $model seed $seed ($minutes min budget${width:+, $width}${extra:+, $extra})"; ran=1
+    log "train $model seed $seed ($minutes min budget${STEPS:+, at most $STEPS steps}${width:+, $width}${extra:+, $extra})"; ran=1
     nostra train $COMMON model=$model seed=$seed "data.collections=[$COLLECTIONS]" train.max_minutes=$minutes \
       "train.rollout.modes=[closed]" ${STEPS:+train.max_steps=$STEPS} $width $extra
   done
