@@ -30,7 +30,8 @@ def test_cpu_report(tmp_path):
         {"step": 2000, "episodes": 10, "score": 0.9, "seconds": 60},
         {"step": 3000, "episodes": 50, "score": 0.7, "seconds": 180}]))
     out = tmp_path / "report"
-    cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--out", str(out), "--wall-seconds", "3600"])
+    cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--out", str(out), "--wall-seconds", "3600",
+                     "--command", "TASK=liftd1 make cpu"])
     text = (out / "index.md").read_text()
     assert "| 0 | BC-LSTM | 90 [10, 90] | 70 [10, 90] | 10 [10, 90] |" in text
     assert "cameras imagined" in text and "| 0 | BC-NOSTRA | – | – | – | – | – | not trained |" in text
@@ -44,6 +45,8 @@ def test_cpu_report(tmp_path):
     cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--out", str(out), "--demos", "seeds from 0 and 10000"])
     text = (out / "index.md").read_text()
     assert "`s0/last/none` copies the best cell, not a second run" in text and "demos: seeds from 0 and 10000;" in text
+    # rewritten without --command (by hand): the log's one command stays the header's, nothing added
+    assert "- Command: `TASK=liftd1 make cpu`" in text and "Commands, in the order" not in text
 
 
 def _records(folder, successes):
