@@ -6,13 +6,18 @@
 #            of the other n - 200 (episode seeds from 10000: apart from the first demos' and the evaluation's,
 #            1000...) and gives the study its own runs and reports (data/runs/cpu-d<n>, reports/cpu-d<n>)
 #   STEPS=<n> (optional) a whole number of training steps, checked here for the scripts that take one
-# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>]) and REPORTS (reports/cpu[...]);
+#   HORIZON=<n> (optional) rollout steps instead of the profile's eval_horizon: the cells (and the reports)
+#            are named <task>-h<n>, so that they never mix with, or are kept as, the profile horizon's
+# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>]), REPORTS (reports/cpu[...]) and EVAL_NAME;
 # defines collection, demo_collections and same_as_best.
 OBS=${OBS:-rgb}
 CAPACITY=${CAPACITY:-configured}
 DEMOS=${DEMOS:-}
 [ -z "${STEPS:-}" ] || [[ $STEPS =~ ^[1-9][0-9]*$ ]] ||
   { echo "$0: STEPS=$STEPS must be a whole number of training steps above 0" >&2; exit 2; }
+[ -z "${HORIZON:-}" ] || [[ $HORIZON =~ ^[1-9][0-9]*$ ]] ||
+  { echo "$0: HORIZON=$HORIZON must be a whole number of rollout steps above 0" >&2; exit 2; }
+EVAL_NAME=${TASK:-}${HORIZON:+-h$HORIZON}   # evaluate/<EVAL_NAME>: the task's cells at this horizon
 case $OBS in
   rgb) PROFILE=cpu SUFFIX="" ;;
   rgbd) PROFILE=cpu_rgbd SUFFIX=-rgbd ;;

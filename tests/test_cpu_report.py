@@ -48,6 +48,12 @@ def test_cpu_report(tmp_path):
     # rewritten without --command (by hand): the log's one command stays the header's, nothing added
     assert "- Command: `TASK=liftd1 make cpu`" in text and "Commands, in the order" not in text
 
+    # HORIZON=<n>: the cells live in their own folder, never mixed with the profile horizon's
+    _success(runs / "evaluate/liftd1-h400/s0/best", [("none", "lstm", 10)])
+    cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--out", str(tmp_path / "h400"), "--horizon", "400"])
+    text = (tmp_path / "h400" / "index.md").read_text()
+    assert "| 0 | BC-LSTM | 100 [10, 90] | – | – |" in text and "Rollout horizon: 400 steps" in text
+
 
 def _records(folder, successes):
     rec = folder / "records/LiftD1/none"

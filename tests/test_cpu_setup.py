@@ -44,3 +44,13 @@ def test_a_step_budget_that_is_not_a_whole_number_is_refused_naming_it():
         assert r.returncode == 2 and "reached" not in r.stdout
         assert f"STEPS={bad}" in r.stderr
     assert setup({"STEPS": "3268"}, "echo reached").stdout == "reached\n"
+
+
+def test_a_horizon_of_its_own_names_the_cells_apart_and_a_bad_one_is_refused():
+    r = setup({"TASK": "stack", "HORIZON": "400"}, 'echo "$EVAL_NAME"')
+    assert r.returncode == 0, r.stderr
+    assert r.stdout == "stack-h400\n"
+    assert setup({"TASK": "stack"}, 'echo "$EVAL_NAME"').stdout == "stack\n"  # the profile's horizon
+    for bad in ("0", "4e2", "long"):
+        r = setup({"TASK": "stack", "HORIZON": bad}, "echo reached")
+        assert r.returncode == 2 and "reached" not in r.stdout and f"HORIZON={bad}" in r.stderr

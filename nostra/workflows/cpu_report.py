@@ -199,11 +199,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--command", default=None, help="the command that made the evaluations (for the header; none: the log's history kept)")
     ap.add_argument("--wall-seconds", type=float, default=None)
     ap.add_argument("--demos", default="expert seeds from 0", help="where the training demos came from")
+    ap.add_argument("--horizon", type=int, default=None,
+                    help="the rollout horizon make cpu's HORIZON set: its cells are in <runs>/evaluate/<task>-h<N>")
     args = ap.parse_args(argv)
     task = get_task(args.task).name  # unknown task -> the valid ones
     runs, out = Path(args.runs), Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    df = success_rows(runs, args.task, args.seeds)  # evaluation folders are named as the command named the task
+    folder = args.task + (f"-h{args.horizon}" if args.horizon else "")  # named as the command named the task
+    df = success_rows(runs, folder, args.seeds)
     if len(df):
         df.to_csv(out / "success.csv", index=False)
     train_lines, curves = training_rows(runs, task, args.seeds, args.models)
@@ -212,12 +215,15 @@ def main(argv: list[str] | None = None) -> None:
     commands = command_header(out, args.command, args.wall_seconds)
     if not any(c.startswith("- Wall time") for c in commands):
         commands.append("- Wall time of the command: see the training table")
-    copies = sorted(str(p.parent.relative_to(runs / "evaluate" / args.task))
-                    for p in (runs / "evaluate" / args.task).glob("s*/last/*/SAME_AS_BEST.txt"))
+    copies = sorted(str(p.parent.relative_to(runs / "evaluate" / folder))
+                    for p in (runs / "evaluate" / folder).glob("s*/last/*/SAME_AS_BEST.txt"))
     text = [f"# CPU profile: {task}", "",
             *commands, f"- Machine: {machine()}",
             f"- Training seeds: {', '.join(map(str, args.seeds))}; demos: {args.demos}; "
             f"rollouts: seeds 1000-{1000 + max(episodes, 1) - 1} (never used by demos), the same for every variant",
+            *([f"- Rollout horizon: {args.horizon} steps, set for these cells (`HORIZON`; evaluations in "
+               f"`{runs / 'evaluate' / folder}`); the best checkpoint is the one the training's own checks picked"]
+              if args.horizon else []),
             *([f"- Last = best checkpoint for every model (the final check was the best): "
                f"{', '.join(f'`{c}`' for c in copies)} copies the best cell, not a second run"] if copies else []),
             "", "## Success", "",
