@@ -12,6 +12,8 @@
 #   CAPACITY=matched MODELS="lstm rssm nostra" make cpu   # BC-LSTM and BC-RSSM at NOSTRA's parameter count
 #   SEEDS=2 CPU_OUT=reports/cpu/liftd1/claims-s2/cpu make cpu   # the report elsewhere, not over seeds 0-1's
 #   TASK=stack DEMOS=1000 MODELS=nostra MINUTES=60 make cpu   # 1000 demos (the paper's for MimicGen's tasks)
+#   TASK=stack DEMOS=1000 SEEDS="0 1" MODELS=nostra HORIZON=400 make cpu   # finished runs rolled out 400 steps:
+#     cells in evaluate/stack-h400, report in reports/cpu-d1000/stack-h400 (apart from the profile horizon's)
 #   TASK=liftd1 SEEDS=4 MODELS=rssm STEPS=3268 make cpu   # a step budget too (train.max_steps): match a run
 #     trained on another machine, whose minutes bought a different number of steps
 #   MODELS=diffusion DP_MINUTES=90 DP_STEPS=14000 DP_CHECK_EVERY=2000 make cpu   # Diffusion Policy's own budget:
@@ -24,10 +26,10 @@ SEEDS=${SEEDS:-0}
 MODELS=${MODELS:-lstm nostra}
 MINUTES=${MINUTES:-30}
 STEPS=${STEPS:-}   # empty: the minutes alone end training
-HORIZON=${HORIZON:-}   # rollout horizon in steps; empty: the profile's (200, enough for Lift)
+HORIZON=${HORIZON:-}   # rollout horizon in steps; empty: the profile's (200, enough for Lift; MimicGen rolls Stack out 400)
 DP_MINUTES=${DP_MINUTES:-} DP_STEPS=${DP_STEPS:-} DP_CHECK_EVERY=${DP_CHECK_EVERY:-}
 source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
-OUT=${CPU_OUT:-$REPORTS/$TASK}   # CPU_OUT: elsewhere (a seed run alone, its siblings' runs not on this disk)
+OUT=${CPU_OUT:-$REPORTS/$EVAL_NAME}   # CPU_OUT: elsewhere (a seed run alone, its siblings' runs not on this disk)
 COMMON="profile=$PROFILE task=$TASK paths.runs=$RUNS${HORIZON:+ profile.eval_horizon=$HORIZON}"
 start=$(date +%s)
 ran=0   # set when this run trained or evaluated something: otherwise the report of the run that did is kept
@@ -86,9 +88,9 @@ all_same_as_best() { local m; for m in $MODELS; do same_as_best $m $1 || return 
 for seed in $SEEDS; do
   for c in best:none best:blind last:none; do
     ck=${c%%:*} noise=${c##*:}
-    out=$RUNS/evaluate/$TASK/s$seed/$ck/$noise
+    out=$RUNS/evaluate/$EVAL_NAME/s$seed/$ck/$noise
     if [ -f "$out/success.csv" ]; then log "evaluate seed $seed $ck $noise: done before, kept"; continue; fi
-    best=$RUNS/evaluate/$TASK/s$seed/best/$noise
+    best=$RUNS/evaluate/$EVAL_NAME/s$seed/best/$noise
     if [ $ck = last ] && [ -f "$best/success.csv" ] && all_same_as_best $seed; then
       mkdir -p "$(dirname "$out")" && cp -r "$best" "$out"
       echo "Every model's last checkpoint is its best (the final check was the best): a copy of best/$noise." \
@@ -105,7 +107,7 @@ if [ $ran = 0 ] && [ -f "$OUT/index.md" ]; then
   log "nothing new to train or evaluate: $OUT/index.md kept (its command and wall time are the run's that made it)"; exit 0
 fi
 python -m nostra.workflows.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
-  --demos "$DEMO_SEEDS" \
+  --demos "$DEMO_SEEDS" ${HORIZON:+--horizon $HORIZON} \
   --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${STEPS:+ STEPS=$STEPS}${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS} make cpu" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/index.md"

@@ -30,13 +30,13 @@ HORIZON=${HORIZON:-}
 source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
 CPU_OUT=${OUT:+$OUT/cpu}   # with OUT, make cpu's report goes beside it, not over the task's index.md
 APART=(${OUT:+--seeds $SEEDS})   # with OUT, the report covers SEEDS only, not the other seeds on this disk
-OUT=${OUT:-$REPORTS/$TASK/claims}
+OUT=${OUT:-$REPORTS/$EVAL_NAME/claims}
 case $OBS in
   rgb) NOISES=${NOISES:-none mask cam_jitter table_tex clean_windows blind} ;;
   rgbd) NOISES=${NOISES:-none rgb rgbd all blind} ;;
 esac
 CHECKPOINTS=${CHECKPOINTS:-best last}
-EVAL=$RUNS/evaluate/$TASK
+EVAL=$RUNS/evaluate/$EVAL_NAME   # <task>, or <task>-h<n> at a HORIZON of its own (scripts/cpu_setup.sh)
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
