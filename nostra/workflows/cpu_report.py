@@ -157,7 +157,8 @@ def recipe_main(argv: list[str]) -> None:
     ap.add_argument("--task", required=True)
     ap.add_argument("--steps", type=int, default=1000)
     ap.add_argument("--out", required=True)
-    ap.add_argument("--command", default=None, help="the command that made the evaluations (for the header; none: the log's history kept)")
+    ap.add_argument("--command", default=None,
+                    help="the command that made the evaluations (for the header; none: the log's history kept)")
     ap.add_argument("--wall-seconds", type=float, default=None)
     args = ap.parse_args(argv)
     ev = Path(args.evaluations)
@@ -196,7 +197,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0])
     ap.add_argument("--models", nargs="+", default=["lstm", "nostra"])
     ap.add_argument("--out", required=True)
-    ap.add_argument("--command", default=None, help="the command that made the evaluations (for the header; none: the log's history kept)")
+    ap.add_argument("--command", default=None,
+                    help="the command that made the evaluations (for the header; none: the log's history kept)")
     ap.add_argument("--wall-seconds", type=float, default=None)
     ap.add_argument("--demos", default="expert seeds from 0", help="where the training demos came from")
     ap.add_argument("--horizon", type=int, default=None,
