@@ -69,36 +69,46 @@ done
 # The cells: clean with the best and the last checkpoint, the blind control with the best. The
 # imagining variants (NOSTRA + MLI, BC-RSSM + LI) run only blind (with no noise they imagine nothing:
 # they are the closed-loop policy) and the closed-loop NOSTRA and BC-RSSM only clean.
-variants() {  # $1 = the noise; prints the overrides that drop the variants this cell does not need
-  local keep="" v m
+kept() {  # $1 = the noise; prints the variants this cell needs
+  local m
   for m in $MODELS; do
     case "$m:$1" in
-      nostra:none) keep="$keep nostra" ;;
-      nostra:*) keep="$keep nostra_mli" ;;
-      rssm:none) keep="$keep rssm" ;;
-      rssm:*) keep="$keep rssm_li" ;;
-      *) keep="$keep $m" ;;  # lstm, diffusion: black frames when blind
+      nostra:none) echo nostra ;;
+      nostra:*) echo nostra_mli ;;
+      rssm:none) echo rssm ;;
+      rssm:*) echo rssm_li ;;
+      *) echo $m ;;  # lstm, diffusion: black frames when blind
     esac
   done
+}
+drop() {  # $@ = the variants to run; prints the overrides that drop every other one
+  local v
   for v in lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli; do
-    case " $keep " in *" $v "*) ;; *) printf 'evaluate.variants.%s=null ' "$v" ;; esac
+    case " $* " in *" $v "*) ;; *) printf 'evaluate.variants.%s=null ' "$v" ;; esac
   done
 }
 all_same_as_best() { local m; for m in $MODELS; do same_as_best $m $1 || return 1; done; }
 for seed in $SEEDS; do
   for c in best:none best:blind last:none; do
     ck=${c%%:*} noise=${c##*:}
-    out=$RUNS/evaluate/$EVAL_NAME/s$seed/$ck/$noise
-    if [ -f "$out/success.csv" ]; then log "evaluate seed $seed $ck $noise: done before, kept"; continue; fi
+    cell=$RUNS/evaluate/$EVAL_NAME/s$seed/$ck/$noise
+    todo=""   # the variants without records in this cell (another model's run may have filled it first)
+    for v in $(kept $noise); do
+      compgen -G "$cell/records/$NAME/$noise/${v}_seed*.npz" > /dev/null ||
+        compgen -G "$cell/*/records/$NAME/$noise/${v}_seed*.npz" > /dev/null || todo="$todo $v"
+    done
+    if [ -z "$todo" ]; then log "evaluate seed $seed $ck $noise: done before, kept"; continue; fi
+    out=$cell
+    [ -e "$cell/success.csv" ] && out=$cell/$(echo $todo | tr ' ' '+')   # beside the other models' records
     best=$RUNS/evaluate/$EVAL_NAME/s$seed/best/$noise
-    if [ $ck = last ] && [ -f "$best/success.csv" ] && all_same_as_best $seed; then
-      mkdir -p "$(dirname "$out")" && cp -r "$best" "$out"
+    if [ $ck = last ] && [ ! -e "$cell" ] && [ -f "$best/success.csv" ] && all_same_as_best $seed; then
+      mkdir -p "$(dirname "$cell")" && cp -r "$best" "$cell"
       echo "Every model's last checkpoint is its best (the final check was the best): a copy of best/$noise." \
-        > "$out/SAME_AS_BEST.txt"
+        > "$cell/SAME_AS_BEST.txt"
       log "evaluate seed $seed last $noise: the same checkpoints as best, its records copied"; ran=1; continue
     fi
-    log "evaluate seed $seed checkpoint=$ck noise=$noise"; ran=1
-    nostra evaluate $COMMON seed=$seed evaluate.checkpoint=$ck "evaluate.noises=[$noise]" $(variants "$noise") \
+    log "evaluate seed $seed checkpoint=$ck noise=$noise:$todo"; ran=1
+    nostra evaluate $COMMON seed=$seed evaluate.checkpoint=$ck "evaluate.noises=[$noise]" $(drop $todo) \
       evaluate.offline.enabled=false evaluate.out_dir=$out
   done
 done
