@@ -285,3 +285,22 @@ def test_engine_and_noise_need_no_simulator():
     code = ("import sys, nostra.episode, nostra.noise, nostra.workflows.analysis; "
             "bad = [m for m in ('mujoco', 'robosuite') if m in sys.modules]; assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_diffusion_sampling_noise_is_fixed_by_the_episode():
+    """Diffusion Policy samples its plans: a rollout of one checkpoint on one initial state must not depend
+    on what the process's torch generator did before (two evaluations of a checkpoint agree)."""
+    from nostra.policies.diffusion import DiffusionNet, DiffusionRunner
+    from nostra.sim.rollout import EpisodeJob, run_episode
+
+    torch.manual_seed(0)
+    net = DiffusionNet(MODS, 2, embed_dim=16, encoder_hidden=[32], down_dims=[16, 32], step_embed_dim=16)
+    obs, actions = _data(5)
+    net.normalizer.set_stats(S.stats_of({"obs": {k: v for k, v in obs.items() if k != "agentview_image"},
+                                         "actions": actions}))
+    runner = DiffusionRunner(net, sampler="ddim", inference_steps=2)
+    job = EpisodeJob("Fake", "none", "v", "ckpt", "closed", seed=4, horizon=12, windows=WINDOWS)
+    first = run_episode(FakeEnv(), runner, job).record["action"]
+    torch.manual_seed(123)  # the process's generator elsewhere
+    again = run_episode(FakeEnv(), runner, job).record["action"]
+    np.testing.assert_array_equal(first, again)

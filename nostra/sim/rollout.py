@@ -46,6 +46,8 @@ def run_episode(env, runner, job: EpisodeJob) -> EpisodeResult:
     """Roll out until success or the horizon (robomimic's convention: stop at success)."""
     schedule = NoiseSchedule(job.noise, job.windows, job.noise_params)
     rng = np.random.default_rng([job.seed, 7])  # noise draws: the same for every variant
+    if hasattr(runner, "seed"):  # a sampling policy (Diffusion Policy): its noise fixed by the episode, so
+        runner.seed = job.seed   # a cell and an in-training check of one checkpoint roll out alike
     ep = episode.run(SimSource(env, job.seed), runner, schedule, job.mode, job.horizon, rng,
                      frame_key=FRONT_IMAGE if job.video_path else None)
     if ep.reason:
