@@ -94,8 +94,7 @@ for seed in $SEEDS; do
     cell=$RUNS/evaluate/$EVAL_NAME/s$seed/$ck/$noise
     todo=""   # the variants without records in this cell (another model's run may have filled it first)
     for v in $(kept $noise); do
-      compgen -G "$cell/records/$NAME/$noise/${v}_seed*.npz" > /dev/null ||
-        compgen -G "$cell/*/records/$NAME/$noise/${v}_seed*.npz" > /dev/null || todo="$todo $v"
+      records "$cell" $noise $v > /dev/null || todo="$todo $v"
     done
     if [ -z "$todo" ]; then log "evaluate seed $seed $ck $noise: done before, kept"; continue; fi
     out=$cell

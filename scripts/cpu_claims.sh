@@ -73,8 +73,7 @@ reuse_best() {  # $1 = seed, $2 = noise, $3... = variants: copy each variant's b
   local seed=$1 noise=$2 v src dst; shift 2
   for v in "$@"; do
     same_as_best "$(model_of "$v")" "$seed" || continue
-    src=$(compgen -G "$EVAL/s$seed/best/$noise/**/records/$NAME/$noise/${v}_seed*.npz" ||
-          compgen -G "$EVAL/s$seed/best/$noise/records/$NAME/$noise/${v}_seed*.npz") || continue
+    src=$(records "$EVAL/s$seed/best/$noise" $noise $v) || continue
     dst=$EVAL/s$seed/last/$noise/same-as-best/records/$NAME/$noise
     mkdir -p "$dst" && cp $src "$dst/" && log "seed $seed last $noise $v: same checkpoint as best, records copied"
   done
@@ -85,8 +84,7 @@ for seed in $SEEDS; do
       [ $ck = last ] && reuse_best "$seed" "$noise" $(needed $noise)
       todo=""
       for v in $(needed $noise); do  # kept: a variant with records of this cell (make cpu's folder or ours)
-        compgen -G "$EVAL/s$seed/$ck/$noise/**/records/$NAME/$noise/${v}_seed*.npz" > /dev/null ||
-          compgen -G "$EVAL/s$seed/$ck/$noise/records/$NAME/$noise/${v}_seed*.npz" > /dev/null || todo="$todo $v"
+        records "$EVAL/s$seed/$ck/$noise" $noise $v > /dev/null || todo="$todo $v"
       done
       [ -z "$todo" ] && continue
       drop=""

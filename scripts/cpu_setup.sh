@@ -9,7 +9,7 @@
 #   HORIZON=<n> (optional) rollout steps instead of the profile's eval_horizon: the cells (and the reports)
 #            are named <task>-h<n>, so that they never mix with, or are kept as, the profile horizon's
 # Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>]), REPORTS (reports/cpu[...]) and EVAL_NAME;
-# defines collection, demo_collections and same_as_best.
+# defines collection, demo_collections, same_as_best and records.
 OBS=${OBS:-rgb}
 CAPACITY=${CAPACITY:-configured}
 DEMOS=${DEMOS:-}
@@ -40,6 +40,11 @@ with initialize_config_dir(CONF_DIR, version_base='1.3'):
 fi
 RUNS=data/runs/cpu$SUFFIX
 REPORTS=reports/cpu$SUFFIX
+
+# prints a variant's episode records in a cell, in the cell itself or in one run's subfolder; fails when none
+records() {  # $1 = the cell's folder, $2 = the noise, $3 = the variant; needs NAME (the task's name)
+  compgen -G "$1/records/$NAME/$2/${3}_seed*.npz" || compgen -G "$1/*/records/$NAME/$2/${3}_seed*.npz"
+}
 
 # 0 when a model's last checkpoint is its best (the final in-training check was the best): the same
 # weights under both names, so a last cell can be a copy of the best cell, not a second run

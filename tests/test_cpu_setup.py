@@ -54,3 +54,13 @@ def test_a_horizon_of_its_own_names_the_cells_apart_and_a_bad_one_is_refused():
     for bad in ("0", "4e2", "long"):
         r = setup({"TASK": "stack", "HORIZON": bad}, "echo reached")
         assert r.returncode == 2 and "reached" not in r.stdout and f"HORIZON={bad}" in r.stderr
+
+
+def test_records_finds_a_variants_episodes_in_the_cell_or_a_runs_subfolder(tmp_path):
+    cell = tmp_path / "s0/best/none"
+    for where, variant in ((cell, "rssm"), (cell / "diffusion", "diffusion")):
+        (where / "records/LiftD1/none").mkdir(parents=True)
+        (where / f"records/LiftD1/none/{variant}_seed1000.npz").touch()
+    r = setup({}, f'NAME=LiftD1; for v in rssm diffusion lstm; do records {cell} none $v || echo "$v: none"; done')
+    assert r.stdout.splitlines() == [f"{cell}/records/LiftD1/none/rssm_seed1000.npz",
+                                     f"{cell}/diffusion/records/LiftD1/none/diffusion_seed1000.npz", "lstm: none"]

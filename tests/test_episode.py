@@ -18,7 +18,8 @@ from nostra.episode import RecordedSource, oracle_keys
 from nostra.policies.imagination import AdaMLIConfig, in_windows, window_mask
 from nostra.modality import Modality
 from nostra.noise import NOISES, NoiseSchedule
-from nostra.policies import LSTMNet, LSTMRunner, NostraNet, NostraRunner, RSSMNet, RSSMRunner
+from nostra.policies import (DiffusionNet, DiffusionRunner, LSTMNet, LSTMRunner, NostraNet, NostraRunner, RSSMNet,
+                             RSSMRunner)
 
 STEPS, SIZE = 24, 36
 WINDOWS = [(5, 11), (15, 19)]
@@ -42,9 +43,10 @@ MODS = [Modality("agentview_image", "rgb", (SIZE, SIZE, 3)), Modality("agentview
 def _runner(policy, **kwargs):
     torch.manual_seed(0)
     net_cls, runner_cls = {"nostra": (NostraNet, NostraRunner), "rssm": (RSSMNet, RSSMRunner),
-                           "lstm": (LSTMNet, LSTMRunner)}[policy]
-    net = net_cls(MODS, 2, **(dict(embed_dim=32, encoder_hidden=[64], rnn_hidden=64, decoder_hidden=[64, 64])
-                              if policy == "lstm" else SMALL_NET))
+                           "lstm": (LSTMNet, LSTMRunner), "diffusion": (DiffusionNet, DiffusionRunner)}[policy]
+    net = net_cls(MODS, 2, **{"lstm": dict(embed_dim=32, encoder_hidden=[64], rnn_hidden=64, decoder_hidden=[64, 64]),
+                              "diffusion": dict(embed_dim=16, encoder_hidden=[32], down_dims=[16, 32], step_embed_dim=16)
+                              }.get(policy, SMALL_NET))
     obs, actions = _data(5)
     net.normalizer.set_stats(S.stats_of({"obs": {k: v for k, v in obs.items() if k != "agentview_image"},
                                          "actions": actions}))
@@ -290,15 +292,9 @@ def test_engine_and_noise_need_no_simulator():
 def test_diffusion_sampling_noise_is_fixed_by_the_episode():
     """Diffusion Policy samples its plans: a rollout of one checkpoint on one initial state must not depend
     on what the process's torch generator did before (two evaluations of a checkpoint agree)."""
-    from nostra.policies.diffusion import DiffusionNet, DiffusionRunner
     from nostra.sim.rollout import EpisodeJob, run_episode
 
-    torch.manual_seed(0)
-    net = DiffusionNet(MODS, 2, embed_dim=16, encoder_hidden=[32], down_dims=[16, 32], step_embed_dim=16)
-    obs, actions = _data(5)
-    net.normalizer.set_stats(S.stats_of({"obs": {k: v for k, v in obs.items() if k != "agentview_image"},
-                                         "actions": actions}))
-    runner = DiffusionRunner(net, sampler="ddim", inference_steps=2)
+    runner = _runner("diffusion", sampler="ddim", inference_steps=2)
     job = EpisodeJob("Fake", "none", "v", "ckpt", "closed", seed=4, horizon=12, windows=WINDOWS)
     first = run_episode(FakeEnv(), runner, job).record["action"]
     torch.manual_seed(123)  # the process's generator elsewhere
