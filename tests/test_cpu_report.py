@@ -55,6 +55,22 @@ def test_cpu_report(tmp_path):
     assert "| 0 | BC-LSTM | 100 [10, 90] | – | – |" in text and "Rollout horizon: 400 steps" in text
 
 
+def test_cpu_report_best_is_the_runs_own_pick_at_its_horizon(tmp_path):
+    """A run resumed at a longer horizon: the table's best step is the one run.json names (picked among
+    the checks at that horizon), not the highest score at another horizon; the curve draws both."""
+    run = tmp_path / "runs/train/pretrain-nostra-Stack-s0"
+    run.mkdir(parents=True)
+    (run / "run.json").write_text(json.dumps({"steps": 3000, "wall_seconds": 1800, "rollouts": {
+        "best": {"step": 3000, "score": 0.7, "episodes": 10}}}))
+    (run / "rollouts.json").write_text(json.dumps([
+        {"step": 2000, "episodes": 10, "horizon": 200, "score": 0.9, "seconds": 60},
+        {"step": 3000, "episodes": 10, "horizon": 400, "score": 0.7, "seconds": 60}]))
+    lines, curves = cpu_report.training_rows(tmp_path / "runs", "Stack", [0], ["nostra"])
+    assert lines[-1].endswith("| 2 | 3000 (70%, 10) |")
+    cpu_report.curve_figure(curves, tmp_path / "curve.png")
+    assert (tmp_path / "curve.png").stat().st_size > 0
+
+
 def _records(folder, successes):
     rec = folder / "records/LiftD1/none"
     rec.mkdir(parents=True)

@@ -80,7 +80,9 @@ def training_rows(runs: Path, task_name: str, seeds: list[int], models: list[str
             curves[(seed, m)] = checks
             wall = info.get("wall_seconds") or float("nan")
             spent = sum(c.get("seconds", 0) for c in checks)
-            best = max(checks, key=lambda c: (c["score"], c["step"]), default=None)
+            # the run's own pick (run.json): among the checks at its last horizon, as best.ckpt was chosen
+            best = (info.get("rollouts") or {}).get("best") or max(checks, key=lambda c: (c["score"], c["step"]),
+                                                                   default=None)
             best_s = f"{best['step']} ({100 * best['score']:.0f}%, {best['episodes']})" if best else "–"
             demos = (f"{info['train_episodes']} + {info['val_episodes']}" if "train_episodes" in info else "–")
             lines.append(f"| {seed} | {LABELS.get(m, m)} | {demos} | {info['steps']} | {wall / 60:.1f} | "
@@ -96,9 +98,11 @@ def curve_figure(curves: dict, path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
     for (seed, m), checks in curves.items():
-        if checks:
-            ax.plot([c["step"] for c in checks], [100 * c["score"] for c in checks], marker="o",
-                    label=f"{LABELS.get(m, m)} s{seed}")
+        horizons = sorted({c.get("horizon") for c in checks}, key=str)
+        for h in horizons:  # a run resumed at another horizon: one line per horizon
+            part = [c for c in checks if c.get("horizon") == h]
+            ax.plot([c["step"] for c in part], [100 * c["score"] for c in part], marker="o",
+                    label=f"{LABELS.get(m, m)} s{seed}" + (f", {h} steps" if len(horizons) > 1 and h else ""))
     ax.set_xlabel("training step")
     ax.set_ylabel("clean success (%)")
     ax.set_ylim(-5, 105)

@@ -6,7 +6,11 @@ checkpoint's modalities say it; no config repeats it). Success goes to MLflow as
 ``rollout/<task>/<noise>/<variant>`` at that step; the checkpoint with the best success on the
 first noise and variant (clean, closed loop by default) is copied to ``checkpoints/best.ckpt``.
 Early checks use few episodes, the one at the end of training ``final_episodes``, so rollouts stay
-a small share of the wall time; ``rollouts.json`` lists every check with its cost.
+a small share of the wall time; ``rollouts.json`` lists every check with its cost and horizon.
+A run resumed at another horizon (``train.rollout.horizon``) keeps the earlier checks in the log,
+but picks its best, and skips a step already checked, only among the checks at its own horizon:
+success at 200 steps and at 400 are not one score (rows from before horizons were logged count as
+the current horizon's, as they did then).
 
 Under DDP every rank saves the checkpoint (a collective call; rank 0 writes it), rank 0 alone
 runs the rollouts, logs and writes, and the other ranks wait in a barrier, for at most the
@@ -70,7 +74,8 @@ class RolloutCallback(L.Callback):
         self.task = get_task(env.task)
         self.log_path = self.out / "rollouts.json"
         self.history: list[dict] = json.loads(self.log_path.read_text()) if self.log_path.is_file() else []
-        self.best = max((h["score"] for h in self.history), default=-1.0)
+        self.horizon = cfg.horizon or self.task.horizon
+        self.best = max((h["score"] for h in self._comparable()), default=-1.0)
         self.started = time.time()
 
     # ---- hooks -----------------------------------------------------------------------------
@@ -99,12 +104,12 @@ class RolloutCallback(L.Callback):
         step, start = trainer.global_step, time.time()
         path = self.out / "checkpoints" / f"step={step}.ckpt"
         trainer.save_checkpoint(path)  # collective under DDP: every rank calls it, rank 0 writes
-        row = {"step": step, "episodes": episodes, "checkpoint": path.name, "success": {}}
+        row = {"step": step, "episodes": episodes, "horizon": self.horizon, "checkpoint": path.name, "success": {}}
         if trainer.is_global_zero:
             cells = [(n, m) for n in self.cfg.noises for m in self.cfg.modes]
             windows = task_windows(self.env.windows, self.task.name, self.task)
             jobs = [EpisodeJob(self.task.name, n, variant_id(self.policy, m), str(path), m, self.cfg.seed + i,
-                               self.cfg.horizon or self.task.horizon, windows, dict(self.env.noise_params))
+                               self.horizon, windows, dict(self.env.noise_params))
                     for n, m in cells for i in range(episodes)]
             results = run_jobs(jobs, self.cfg.workers, progress=False)
             metrics = {}
@@ -138,12 +143,16 @@ class RolloutCallback(L.Callback):
 
     def _done(self, step: int, episodes: int | None = None) -> bool:
         """Already checked at this step (a resumed run), with at least this many episodes."""
-        return any(h["step"] == step and h["episodes"] >= (episodes or 0) for h in self.history)
+        return any(h["step"] == step and h["episodes"] >= (episodes or 0) for h in self._comparable())
+
+    def _comparable(self) -> list[dict]:
+        """The checks at this run's horizon (a row without one predates the key: taken as this horizon's)."""
+        return [h for h in self.history if h.get("horizon", self.horizon) == self.horizon]
 
     def summary(self) -> dict:
         """Rollout cost against the wall time of the run, and the best and last checks."""
         spent = sum(h.get("seconds", 0) for h in self.history)
-        best = max(self.history, key=lambda h: (h["score"], h["step"]), default=None)
-        return {"rollout_seconds": round(spent, 1), "checks": len(self.history),
+        best = max(self._comparable(), key=lambda h: (h["score"], h["step"]), default=None)
+        return {"rollout_seconds": round(spent, 1), "checks": len(self.history), "horizon": self.horizon,
                 "best": best and {"step": best["step"], "score": best["score"], "episodes": best["episodes"]},
                 "last": self.history[-1] if self.history else None}
