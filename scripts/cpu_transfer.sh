@@ -24,7 +24,7 @@ SEEDS=${SEEDS:-0}
 TABLES=${TABLES:-4 5}
 MODELS=${MODELS:-lstm rssm nostra}        # Table 4's rows
 COTRAIN_MODELS=${COTRAIN_MODELS:-nostra}  # Table 5's rows
-DEMOS=${DEMOS:-10 20}                     # Table 4's columns: target demos to fine-tune on
+FT_DEMOS=${DEMOS:-10 20}                  # Table 4's columns (DEMOS): target demos to fine-tune on
 N_TARGET=${N_TARGET:-10}                  # Table 5's target demos
 BUDGET_OBJ=${BUDGET_OBJ:-120}
 BUDGET_ALL=${BUDGET_ALL:-40}
@@ -32,6 +32,7 @@ LIBRARY=${LIBRARY:-lift:120 stack:60 pickplacecan:40}   # task:episodes of the r
 MINUTES_PRE=${MINUTES_PRE:-30}            # pretraining on the occluded view, no rollouts
 MINUTES_FT=${MINUTES_FT:-15}              # fine-tuning and co-training, rollouts included
 ROLLOUT_EVERY=${ROLLOUT_EVERY:-500}
+DEMOS=""   # cpu_setup.sh reads DEMOS as the training collection's size; here it named Table 4's columns
 OBS=rgb CAPACITY=configured source scripts/cpu_setup.sh   # PROFILE=cpu, RUNS, collection
 EVAL=$RUNS/evaluate/$TASK-transfer
 OUT=${OUT:-reports/cpu/$TASK/transfer}   # another folder keeps a report whose records are not on this disk
@@ -77,7 +78,7 @@ if has 4; then
       train occluded-$m-$NAME-s$seed model=$m seed=$seed "data.collections=[${TASK}_occluded_pre_cpu]" \
         train.max_minutes=$MINUTES_PRE train.rollout.every=0
     done
-    for n in $DEMOS; do
+    for n in $FT_DEMOS; do
       for m in $MODELS; do
         train finetune-$m-$NAME-n$n-s$seed model=$m seed=$seed "data.collections=[${TASK}_cpu]" train.stage=finetune \
           train.init_from=$RUNS/train/occluded-$m-$NAME-s$seed/policy.ckpt train.num_demos=$n $(checked)
@@ -119,7 +120,7 @@ if has 5; then
 fi
 
 python -m nostra.workflows.transfer_report --evaluations "$EVAL" --out "$OUT" --target-demos $N_TARGET \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" TABLES=\"$TABLES\" MODELS=\"$MODELS\" COTRAIN_MODELS=\"$COTRAIN_MODELS\" DEMOS=\"$DEMOS\" N_TARGET=$N_TARGET BUDGET_OBJ=$BUDGET_OBJ BUDGET_ALL=$BUDGET_ALL LIBRARY=\"$LIBRARY\" MINUTES_PRE=$MINUTES_PRE MINUTES_FT=$MINUTES_FT OUT=$OUT make cpu-transfer" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" TABLES=\"$TABLES\" MODELS=\"$MODELS\" COTRAIN_MODELS=\"$COTRAIN_MODELS\" DEMOS=\"$FT_DEMOS\" N_TARGET=$N_TARGET BUDGET_OBJ=$BUDGET_OBJ BUDGET_ALL=$BUDGET_ALL LIBRARY=\"$LIBRARY\" MINUTES_PRE=$MINUTES_PRE MINUTES_FT=$MINUTES_FT OUT=$OUT make cpu-transfer" \
   --note "Pretraining: ${TASK}_occluded_pre_cpu (agent view occluded, seeds 2000+), $MINUTES_PRE min per model; fine-tuning and co-training: $MINUTES_FT min, a 10-episode check every $ROLLOUT_EVERY steps" \
   --note "Retrieval index (target never retrieved): $pool" \
   --wall-seconds $(( $(date +%s) - start ))

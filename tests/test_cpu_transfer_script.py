@@ -1,0 +1,44 @@
+"""scripts/cpu_transfer.sh (`make cpu-transfer`) run against stand-in `nostra` and `python` commands that
+log their arguments: which runs Table 4 trains for the DEMOS it is given."""
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+STUB = """#!/usr/bin/env bash
+echo "$(basename "$0") $*" >> "$(dirname "$0")/../../calls.log"
+case "$*" in *get_task*) echo LiftD1 ;; esac
+"""
+
+
+def run_script(tmp_path: Path, env: dict) -> tuple[subprocess.CompletedProcess, list[str]]:
+    (tmp_path / "scripts").mkdir()
+    for name in ("cpu_transfer.sh", "cpu_setup.sh"):
+        shutil.copy(ROOT / "scripts" / name, tmp_path / "scripts" / name)
+    bin_dir = tmp_path / ".venv/bin"
+    bin_dir.mkdir(parents=True)
+    for name in ("nostra", "python"):
+        (bin_dir / name).write_text(STUB)
+        (bin_dir / name).chmod(0o755)
+    r = subprocess.run(["bash", "scripts/cpu_transfer.sh"], cwd=tmp_path, capture_output=True, text=True,
+                       env={**os.environ, "TABLES": "4", "SEEDS": "1", "MODELS": "nostra", **env})
+    log = tmp_path / "calls.log"
+    return r, log.read_text().splitlines() if log.exists() else []
+
+
+def test_demos_names_table_4s_columns_not_the_training_collections_size(tmp_path):
+    # DEMOS is also cpu_setup.sh's collection size (refused at or under 200): the script must not pass it on
+    r, calls = run_script(tmp_path, {"DEMOS": "10 20"})
+    assert r.returncode == 0, r.stderr
+    finetunes = [c for c in calls if "train.stage=finetune" in c]
+    assert [c.split("train.num_demos=")[1].split()[0] for c in finetunes] == ["10", "20"]
+    assert all(" paths.runs=data/runs/cpu " in c for c in finetunes)  # the profile's study, not cpu-d<n>
+    report = [c for c in calls if "transfer_report" in c]
+    assert len(report) == 1 and 'DEMOS="10 20"' in report[0]
+
+
+def test_the_default_columns_are_10_and_20_demos(tmp_path):
+    r, calls = run_script(tmp_path, {"DEMOS": ""})
+    assert r.returncode == 0, r.stderr
+    assert sum("train.num_demos=" in c and "finetune" in c for c in calls) == 2
