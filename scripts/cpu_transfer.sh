@@ -16,6 +16,7 @@
 #   TASK=liftd1 SEEDS=0 make cpu-transfer
 #   TABLES=5 COTRAIN_MODELS="nostra lstm" make cpu-transfer
 #   TABLES=5 SEEDS=1 OUT=reports/cpu/liftd1/transfer-s1 make cpu-transfer   # a seed reported apart
+#   TABLES=5 SETTINGS="target_only obj_skill" make cpu-transfer               # some of Table 5's columns
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -24,6 +25,7 @@ SEEDS=${SEEDS:-0}
 TABLES=${TABLES:-4 5}
 MODELS=${MODELS:-lstm rssm nostra}        # Table 4's rows
 COTRAIN_MODELS=${COTRAIN_MODELS:-nostra}  # Table 5's rows
+SETTINGS=${SETTINGS:-target_only obj_skill all}  # Table 5's columns
 FT_DEMOS=${DEMOS:-10 20}                  # Table 4's columns (DEMOS): target demos to fine-tune on
 N_TARGET=${N_TARGET:-10}                  # Table 5's target demos
 BUDGET_OBJ=${BUDGET_OBJ:-120}
@@ -41,6 +43,10 @@ NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK')
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 has() { case " $TABLES " in *" $1 "*) return 0 ;; *) return 1 ;; esac; }
+for setting in $SETTINGS; do
+  case $setting in target_only|obj_skill|all) ;;
+    *) echo "SETTINGS: unknown setting '$setting'; valid: target_only obj_skill all" >&2; exit 2 ;; esac
+done
 
 train() {  # $1 = run name, $2... = overrides; kept once finished (run.json)
   local run=$1; shift
@@ -99,7 +105,8 @@ if has 5; then
   done
   log "index $pool"   # incremental: unchanged collections are left alone
   nostra index profile=$PROFILE retrieval.index_dir=$RUNS/index/$TASK "retrieval.collections=[$pool]" retrieval.progress=false
-  for mode in obj_skill all; do
+  for mode in $SETTINGS; do
+    [ $mode = target_only ] && continue
     manifest=$RUNS/manifests/$TASK-$mode.json
     budget=$([ $mode = all ] && echo $BUDGET_ALL || echo $BUDGET_OBJ)
     [ -f "$manifest" ] && { log "retrieve $mode: $manifest kept"; continue; }
@@ -107,7 +114,7 @@ if has 5; then
       retrieval.mode=$mode retrieval.budget=$budget retrieval.manifest=$manifest
   done
   for seed in $SEEDS; do
-    for setting in target_only obj_skill all; do
+    for setting in $SETTINGS; do
       stage="train.stage=cotrain train.manifest=$RUNS/manifests/$TASK-$setting.json"
       [ $setting = target_only ] && stage=train.stage=pretrain
       for m in $COTRAIN_MODELS; do
@@ -120,7 +127,7 @@ if has 5; then
 fi
 
 python -m nostra.workflows.transfer_report --evaluations "$EVAL" --out "$OUT" --target-demos $N_TARGET \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" TABLES=\"$TABLES\" MODELS=\"$MODELS\" COTRAIN_MODELS=\"$COTRAIN_MODELS\" DEMOS=\"$FT_DEMOS\" N_TARGET=$N_TARGET BUDGET_OBJ=$BUDGET_OBJ BUDGET_ALL=$BUDGET_ALL LIBRARY=\"$LIBRARY\" MINUTES_PRE=$MINUTES_PRE MINUTES_FT=$MINUTES_FT OUT=$OUT make cpu-transfer" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" TABLES=\"$TABLES\" MODELS=\"$MODELS\" COTRAIN_MODELS=\"$COTRAIN_MODELS\" SETTINGS=\"$SETTINGS\" DEMOS=\"$FT_DEMOS\" N_TARGET=$N_TARGET BUDGET_OBJ=$BUDGET_OBJ BUDGET_ALL=$BUDGET_ALL LIBRARY=\"$LIBRARY\" MINUTES_PRE=$MINUTES_PRE MINUTES_FT=$MINUTES_FT OUT=$OUT make cpu-transfer" \
   --note "Pretraining: ${TASK}_occluded_pre_cpu (agent view occluded, seeds 2000+), $MINUTES_PRE min per model; fine-tuning and co-training: $MINUTES_FT min, a 10-episode check every $ROLLOUT_EVERY steps" \
   --note "Retrieval index (target never retrieved): $pool" \
   --wall-seconds $(( $(date +%s) - start ))

@@ -42,3 +42,22 @@ def test_the_default_columns_are_10_and_20_demos(tmp_path):
     r, calls = run_script(tmp_path, {"DEMOS": ""})
     assert r.returncode == 0, r.stderr
     assert sum("train.num_demos=" in c and "finetune" in c for c in calls) == 2
+
+
+def test_settings_picks_table_5s_columns(tmp_path):
+    r, calls = run_script(tmp_path, {"TABLES": "5", "COTRAIN_MODELS": "rssm nostra",
+                                     "SETTINGS": "target_only obj_skill"})
+    assert r.returncode == 0, r.stderr
+    runs = [c.split("train.run_name=")[1].split()[0] for c in calls if "train.run_name=" in c]
+    assert runs == ["cotrain-rssm-LiftD1-target_only-s1", "cotrain-nostra-LiftD1-target_only-s1",
+                    "cotrain-rssm-LiftD1-obj_skill-s1", "cotrain-nostra-LiftD1-obj_skill-s1"]
+    retrieved = [c.split("retrieval.mode=")[1].split()[0] for c in calls if "retrieval.mode=" in c]
+    assert retrieved == ["obj_skill"]  # no manifest for a column that does not run
+    assert 'SETTINGS="target_only obj_skill"' in [c for c in calls if "transfer_report" in c][0]
+
+
+def test_an_unknown_setting_is_refused_by_name_before_any_work(tmp_path):
+    r, calls = run_script(tmp_path, {"TABLES": "5", "SETTINGS": "target_only obj-skill"})
+    assert r.returncode == 2
+    assert "obj-skill" in r.stderr and "target_only obj_skill all" in r.stderr
+    assert not [c for c in calls if c.startswith("nostra ")]
