@@ -105,3 +105,46 @@ def test_pooling_refuses_reports_of_two_kinds(tmp_path):
         write_pooled([tmp_path / "transfer", tmp_path / "claims"], tmp_path / "out")
     with pytest.raises(FileNotFoundError, match="neither table1.csv"):
         write_pooled([tmp_path / "transfer", tmp_path / "ev"], tmp_path / "out")
+
+
+def test_a_later_baseline_pairs_with_cells_whose_records_are_gone(tmp_path):
+    """episodes.csv keeps every outcome: a run evaluated later, on a disk without the earlier records,
+    pairs with them as if they were on disk, and a record wins over an earlier episode."""
+    import shutil
+
+    import pandas as pd
+
+    _scenario(tmp_path / "all")
+    write_report(tmp_path / "all", tmp_path / "together", target_demos=10)
+    shutil.copytree(tmp_path / "all", tmp_path / "first")  # the earlier sitting: every cell but BC-RSSM's at 10 demos
+    for f in (tmp_path / "first" / "s0" / "finetune-n10").glob("**/rssm_seed*.npz"):
+        f.unlink()
+    write_report(tmp_path / "first", tmp_path / "early", target_demos=10)
+    later = tmp_path / "later"  # a new disk: the baseline's records alone, plus one record that overrides
+    _write(later, 0, "finetune-n10", "rssm", [False] * 20)
+    _write(later, 0, "cotrain-all", "nostra", [False], folder="again")  # episode 1000 again: the record wins
+    write_report(later, tmp_path / "joined", target_demos=10, earlier=[tmp_path / "early" / "episodes.csv"])
+
+    key = ["seed", "table", "a_setting", "a", "b_setting", "b"]
+    want = pd.read_csv(tmp_path / "together" / "paired.csv", dtype={"seed": str}).set_index(key)
+    got = pd.read_csv(tmp_path / "joined" / "paired.csv", dtype={"seed": str}).set_index(key)
+    row = ("0", "Table 4", "finetune-n10", "nostra", "finetune-n10", "rssm")
+    assert row in got.index and got.loc[row, "a_only"] == 16
+    pd.testing.assert_series_equal(got.loc[row], want.loc[row])
+    ep = pd.read_csv(tmp_path / "joined" / "episodes.csv")
+    cell = ep[(ep.setting == "cotrain-all") & (ep.variant == "nostra")]
+    assert len(cell) == 20 and not cell[cell.episode == 1000].success.iloc[0] and cell.success.sum() == 19
+
+
+def test_a_bad_episodes_file_names_the_file_and_what_is_wrong(tmp_path):
+    _scenario(tmp_path / "ev")
+    bad = tmp_path / "episodes.csv"
+    bad.write_text("seed,setting,variant,success\n0,finetune-n10,nostra,True\n")
+    with pytest.raises(ValueError, match=r"episodes.csv: missing column\(s\) episode; expected seed, setting"):
+        write_report(tmp_path / "ev", tmp_path / "out", earlier=[bad])
+    bad.write_text("seed,setting,variant,episode,success\n0,finetune-10,nostra,1000,True\n")
+    with pytest.raises(ValueError, match=r"episodes.csv: transfer setting folder 'finetune-10'"):
+        write_report(tmp_path / "ev", tmp_path / "out", earlier=[bad])
+    with pytest.raises(FileNotFoundError, match="nope.csv: no such episodes file"):
+        write_report(tmp_path / "ev", tmp_path / "out", earlier=[tmp_path / "nope.csv"])
+    assert not (tmp_path / "out").exists()  # nothing written for a refused input

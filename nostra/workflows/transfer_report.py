@@ -11,6 +11,10 @@ from scratch on as many demos (target only), each retrieval against target only.
 
     python -m nostra.workflows.transfer_report --evaluations data/runs/cpu/evaluate/liftd1-transfer \
         --out reports/cpu/liftd1/transfer
+
+The report keeps every episode's outcome (episodes.csv), so cells whose records are gone (another
+machine, an earlier sitting) are read back with ``--episodes <report>/episodes.csv`` and paired with
+new records: a baseline run later meets the same initial states as the cells it is compared with.
 """
 
 from __future__ import annotations
@@ -52,6 +56,45 @@ def load_records(evaluations: Path) -> pd.DataFrame:
         raise FileNotFoundError(f"no episode records under {evaluations}/s<seed>/<setting>/**/records")
     index = pd.MultiIndex.from_tuples(rows, names=["seed", "setting", "variant", "episode"])
     return pd.DataFrame({"success": list(rows.values())}, index=index).reset_index()
+
+
+EPISODE_KEY = ["seed", "setting", "variant", "episode"]
+EPISODE_COLUMNS = EPISODE_KEY + ["success"]  # episodes.csv: load_records' columns
+
+
+def read_episodes(paths: list[Path]) -> pd.DataFrame:
+    """Episodes from earlier reports' episodes.csv, in load_records' columns."""
+    frames = []
+    for path in paths:
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no such episodes file; a transfer report writes <out>/episodes.csv")
+        df = pd.read_csv(path)
+        if missing := [c for c in EPISODE_COLUMNS if c not in df.columns]:
+            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected {', '.join(EPISODE_COLUMNS)}")
+        try:
+            df = df[EPISODE_COLUMNS].astype({"seed": int, "episode": int, "success": bool})
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{path}: seed and episode must be integers, success a boolean ({e})") from None
+        for folder in set(df.setting):
+            try:
+                setting_name(folder)
+            except ValueError as e:
+                raise ValueError(f"{path}: {e}") from None
+        frames.append(df)
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=EPISODE_COLUMNS)
+
+
+def episodes(evaluations: Path, earlier: list[Path] = ()) -> pd.DataFrame:
+    """The records under ``evaluations`` and the episodes of earlier reports; an episode in both: the record."""
+    old = read_episodes(list(earlier))
+    try:
+        new = load_records(evaluations)
+    except FileNotFoundError:
+        if old.empty:
+            raise
+        new = pd.DataFrame(columns=EPISODE_COLUMNS)  # every cell from earlier reports
+    df = pd.concat([d for d in (old, new) if len(d)], ignore_index=True)
+    return df.drop_duplicates(EPISODE_KEY, keep="last").reset_index(drop=True)
 
 
 def success_table(df: pd.DataFrame) -> pd.DataFrame:
@@ -196,10 +239,12 @@ def figure(success: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
-def write_report(evaluations: Path, out: Path, header: list[str] = (), target_demos: int | None = None) -> str:
-    df = load_records(evaluations)
+def write_report(evaluations: Path, out: Path, header: list[str] = (), target_demos: int | None = None,
+                 earlier: list[Path] = ()) -> str:
+    df = episodes(evaluations, earlier)
     out.mkdir(parents=True, exist_ok=True)
     success, pairs = success_table(df), paired_table(df, target_demos)
+    df.sort_values(EPISODE_KEY).to_csv(out / "episodes.csv", index=False)
     success.to_csv(out / "success.csv", index=False)
     pairs.to_csv(out / "paired.csv", index=False)
     figure(success, out / "transfer.png")
@@ -226,9 +271,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--command", default=None, help="the command that made the evaluations (for the header)")
     ap.add_argument("--wall-seconds", type=float, default=None)
     ap.add_argument("--note", action="append", default=[], help="a line for the header")
+    ap.add_argument("--episodes", nargs="+", type=Path, default=[],
+                    help="earlier reports' episodes.csv, read beside the records (cells whose records are elsewhere)")
     args = ap.parse_args(argv)
-    header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note, out=args.out)
-    print(write_report(args.evaluations, args.out, header, args.target_demos))
+    extra = [f"- Episodes read from earlier reports too: {', '.join(f'`{p}`' for p in args.episodes)}"] \
+        if args.episodes else []
+    header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note, extra, out=args.out)
+    print(write_report(args.evaluations, args.out, header, args.target_demos, args.episodes))
 
 
 if __name__ == "__main__":
