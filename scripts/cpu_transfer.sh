@@ -17,6 +17,7 @@
 #   TABLES=5 COTRAIN_MODELS="nostra lstm" make cpu-transfer
 #   TABLES=5 SEEDS=1 OUT=reports/cpu/liftd1/transfer-s1 make cpu-transfer   # a seed reported apart
 #   TABLES=5 SETTINGS="target_only obj_skill" make cpu-transfer               # some of Table 5's columns
+#   EPISODES=reports/cpu/liftd1/transfer/episodes.csv ...   # pair with cells whose records are not on this disk
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -34,6 +35,7 @@ LIBRARY=${LIBRARY:-lift:120 stack:60 pickplacecan:40}   # task:episodes of the r
 MINUTES_PRE=${MINUTES_PRE:-30}            # pretraining on the occluded view, no rollouts
 MINUTES_FT=${MINUTES_FT:-15}              # fine-tuning and co-training, rollouts included
 ROLLOUT_EVERY=${ROLLOUT_EVERY:-500}
+EPISODES=${EPISODES:-}                    # earlier reports' episodes.csv, read beside this disk's records
 DEMOS=""   # cpu_setup.sh reads DEMOS as the training collection's size; here it named Table 4's columns
 OBS=rgb CAPACITY=configured source scripts/cpu_setup.sh   # PROFILE=cpu, RUNS, collection
 EVAL=$RUNS/evaluate/$TASK-transfer
@@ -127,7 +129,8 @@ if has 5; then
 fi
 
 python -m nostra.workflows.transfer_report --evaluations "$EVAL" --out "$OUT" --target-demos $N_TARGET \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" TABLES=\"$TABLES\" MODELS=\"$MODELS\" COTRAIN_MODELS=\"$COTRAIN_MODELS\" SETTINGS=\"$SETTINGS\" DEMOS=\"$FT_DEMOS\" N_TARGET=$N_TARGET BUDGET_OBJ=$BUDGET_OBJ BUDGET_ALL=$BUDGET_ALL LIBRARY=\"$LIBRARY\" MINUTES_PRE=$MINUTES_PRE MINUTES_FT=$MINUTES_FT OUT=$OUT make cpu-transfer" \
+  ${EPISODES:+--episodes $EPISODES} \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" TABLES=\"$TABLES\" MODELS=\"$MODELS\" COTRAIN_MODELS=\"$COTRAIN_MODELS\" SETTINGS=\"$SETTINGS\" DEMOS=\"$FT_DEMOS\" N_TARGET=$N_TARGET BUDGET_OBJ=$BUDGET_OBJ BUDGET_ALL=$BUDGET_ALL LIBRARY=\"$LIBRARY\" MINUTES_PRE=$MINUTES_PRE MINUTES_FT=$MINUTES_FT OUT=$OUT${EPISODES:+ EPISODES=\"$EPISODES\"} make cpu-transfer" \
   --note "Pretraining: ${TASK}_occluded_pre_cpu (agent view occluded, seeds 2000+), $MINUTES_PRE min per model; fine-tuning and co-training: $MINUTES_FT min, a 10-episode check every $ROLLOUT_EVERY steps" \
   --note "Retrieval index (target never retrieved): $pool" \
   --wall-seconds $(( $(date +%s) - start ))

@@ -61,3 +61,15 @@ def test_an_unknown_setting_is_refused_by_name_before_any_work(tmp_path):
     assert r.returncode == 2
     assert "obj-skill" in r.stderr and "target_only obj_skill all" in r.stderr
     assert not [c for c in calls if c.startswith("nostra ")]
+
+
+def test_episodes_reach_the_report_and_its_command(tmp_path):
+    r, calls = run_script(tmp_path, {"TABLES": "5", "SETTINGS": "target_only",
+                                     "EPISODES": "reports/a/episodes.csv reports/b/episodes.csv"})
+    assert r.returncode == 0, r.stderr
+    report = [c for c in calls if "transfer_report" in c][0]
+    assert "--episodes reports/a/episodes.csv reports/b/episodes.csv --command" in report
+    assert 'EPISODES="reports/a/episodes.csv reports/b/episodes.csv" make cpu-transfer' in report
+    (tmp_path / "none").mkdir()
+    _, calls = run_script(tmp_path / "none", {"TABLES": "5", "SETTINGS": "target_only"})  # none given: none passed
+    assert "--episodes" not in [c for c in calls if "transfer_report" in c][0]
