@@ -148,3 +148,13 @@ def test_a_bad_episodes_file_names_the_file_and_what_is_wrong(tmp_path):
     with pytest.raises(FileNotFoundError, match="nope.csv: no such episodes file"):
         write_report(tmp_path / "ev", tmp_path / "out", earlier=[tmp_path / "nope.csv"])
     assert not (tmp_path / "out").exists()  # nothing written for a refused input
+
+
+def test_the_command_refuses_a_bad_episodes_file_before_logging_itself(tmp_path):
+    from nostra.workflows.transfer_report import main
+
+    _scenario(tmp_path / "ev")
+    with pytest.raises(FileNotFoundError, match="nope.csv"):
+        main(["--evaluations", str(tmp_path / "ev"), "--out", str(tmp_path / "out"), "--command", "x",
+              "--episodes", str(tmp_path / "nope.csv")])
+    assert not (tmp_path / "out").exists()  # no commands.jsonl entry for a run that did not happen

@@ -274,6 +274,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--episodes", nargs="+", type=Path, default=[],
                     help="earlier reports' episodes.csv, read beside the records (cells whose records are elsewhere)")
     args = ap.parse_args(argv)
+    read_episodes(args.episodes)  # a bad file is refused before the header logs this command beside the report
     extra = [f"- Episodes read from earlier reports too: {', '.join(f'`{p}`' for p in args.episodes)}"] \
         if args.episodes else []
     header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note, extra, out=args.out)
