@@ -74,19 +74,23 @@ EPISODE_KEY = ["seed", "checkpoint", "noise", "variant", "episode"]
 EPISODE_COLUMNS = EPISODE_KEY + ["success", "imagined_share"]  # episodes.csv, load_records' columns
 
 
+def read_episode_file(path: Path, columns: list[str], kind: str) -> pd.DataFrame:
+    """One earlier report's episodes.csv, checked: ``columns`` there, seed and episode integers, success a
+    boolean (``kind``: the report that writes such a file, for the error)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such episodes file; a {kind} report writes <out>/episodes.csv")
+    df = pd.read_csv(path)
+    if missing := [c for c in columns if c not in df.columns]:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected {', '.join(columns)}")
+    try:
+        return df.astype({"seed": int, "episode": int, "success": bool})
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{path}: seed and episode must be integers, success a boolean ({e})") from None
+
+
 def read_episodes(paths: list[Path]) -> pd.DataFrame:
     """Episodes from earlier reports' episodes.csv (records not on this disk), in load_records' columns."""
-    frames = []
-    for path in paths:
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: no such episodes file; a claims report writes <out>/episodes.csv")
-        df = pd.read_csv(path)
-        if missing := [c for c in EPISODE_COLUMNS if c not in df.columns]:
-            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected {', '.join(EPISODE_COLUMNS)}")
-        try:
-            frames.append(df.astype({"seed": int, "episode": int, "success": bool}))
-        except (TypeError, ValueError) as e:
-            raise ValueError(f"{path}: seed and episode must be integers, success a boolean ({e})") from None
+    frames = [read_episode_file(path, EPISODE_COLUMNS, "claims") for path in paths]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 

@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from nostra.workflows.claims import POOLED, RECORDS, _with_pooled, header_lines, paired, paired_cells
+from nostra.workflows.claims import (POOLED, RECORDS, _with_pooled, header_lines, paired, paired_cells,
+                                     read_episode_file)
 from nostra.workflows.evaluation import wilson
 from nostra.workflows.variants import LABELS
 
@@ -66,15 +67,7 @@ def read_episodes(paths: list[Path]) -> pd.DataFrame:
     """Episodes from earlier reports' episodes.csv, in load_records' columns."""
     frames = []
     for path in paths:
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: no such episodes file; a transfer report writes <out>/episodes.csv")
-        df = pd.read_csv(path)
-        if missing := [c for c in EPISODE_COLUMNS if c not in df.columns]:
-            raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected {', '.join(EPISODE_COLUMNS)}")
-        try:
-            df = df[EPISODE_COLUMNS].astype({"seed": int, "episode": int, "success": bool})
-        except (TypeError, ValueError) as e:
-            raise ValueError(f"{path}: seed and episode must be integers, success a boolean ({e})") from None
+        df = read_episode_file(path, EPISODE_COLUMNS, "transfer")[EPISODE_COLUMNS]
         for folder in set(df.setting):
             try:
                 setting_name(folder)
