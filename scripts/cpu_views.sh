@@ -15,8 +15,12 @@
 # paper, the agent view facing the floor (the same image at every step, no information at all); with BETAS.
 # SPLITS lists which demos each arm is analysed on (default both): held_out (never trained on) and
 # train (the demos it trained on: the training-set KL), one report each (views/, views-train/).
+# OUT names the report folder (default reports/cpu/<task>/views; the training split's gets -train), and
+# EPISODES lists earlier reports' views_episodes.csv, whose runs (no longer on this disk) are paired and
+# pooled beside this disk's: a seed trained in another sitting joins the pooled table.
 #   TASK=liftd1 SEED=0 BETAS="1e-2 1e-4" bash scripts/cpu_views.sh
 #   TASK=liftd1 SEED=0 BETAS="1e-2 1e-4" VIEWS="occluded blind" bash scripts/cpu_views.sh
+#   TASK=liftd1 SEED=3 BETAS=1e-4 SPLITS=held_out OUT=reports/cpu/liftd1/views-s3 bash scripts/cpu_views.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -27,6 +31,10 @@ BETAS=${BETAS:-${BETA:-}}
 STEPS=${STEPS:-2000}
 VIEWS=${VIEWS:-occluded}
 SPLITS=${SPLITS:-held_out train}
+EPISODES=${EPISODES:-}
+for f in $EPISODES; do
+  [ -f "$f" ] || { echo "$0: EPISODES: no such file $f (offline_report writes <out>/views_episodes.csv)" >&2; exit 2; }
+done
 for split in $SPLITS; do
   case $split in held_out|train) ;; *) echo "$0: unknown split $split in SPLITS; valid: held_out, train" >&2; exit 2 ;; esac
 done
@@ -92,11 +100,13 @@ for beta in $BETAS; do
   done
 done
 for split in $SPLITS; do
-  out=reports/cpu/$TASK/views; [ $split = held_out ] || out=$out-$split
+  out=${OUT:-reports/cpu/$TASK/views}; [ $split = held_out ] || out=$out-$split
   # the report holds every call's runs under that folder: name all their training seeds
   seeds=$(ls "$(root $split)" | sed -n 's/^.*-s\([0-9][0-9]*\)\(-[a-z]*\)\{0,1\}$/\1/p' | sort -un | tr '\n' ' ')
-  python -m nostra.workflows.offline_report --analyses "$(root $split)" --out "$out" --command "TASK=$TASK SEED=$SEED \
-BETAS=\"$BETAS\" STEPS=$STEPS VIEWS=\"$VIEWS\" SPLITS=\"$SPLITS\" bash scripts/cpu_views.sh ($(( ($(date +%s) - start) / 60 )) min \
-in this call; the report holds the runs of training SEEDS=\"${seeds% }\")"
+  python -m nostra.workflows.offline_report --analyses "$(root $split)" --out "$out" \
+    ${EPISODES:+--views-episodes $EPISODES} --command "TASK=$TASK SEED=$SEED \
+BETAS=\"$BETAS\" STEPS=$STEPS VIEWS=\"$VIEWS\" SPLITS=\"$SPLITS\"${OUT:+ OUT=$OUT}${EPISODES:+ EPISODES=\"$EPISODES\"} \
+bash scripts/cpu_views.sh ($(( ($(date +%s) - start) / 60 )) min in this call; the report holds the runs of training \
+SEEDS=\"${seeds% }\" on this disk)"
   log "done: $out/offline.md"
 done

@@ -102,3 +102,67 @@ def test_the_report_names_the_demos_the_analyses_replayed():
     assert demos_word([{"name": "a"}]) == "held-out"  # offline.json from before the split was recorded
     assert demos_word([{"split": "train"}, {"split": "train"}]) == "training"
     assert demos_word([{"split": "train"}, {"split": "held_out"}]) == "held-out and training"
+
+
+def _write_analyses(root, arms):
+    for name, arm in arms:
+        d = root / name / "mask" / "offline"
+        d.mkdir(parents=True)
+        kl = {m: sum(v) / len(v) for m, v in arm["kl_nats_episodes"].items()}
+        d.joinpath("offline.json").write_text(json.dumps({
+            **arm, "noise": "mask", "checkpoint": f"{name}.ckpt", "kl_nats": kl,
+            "kl_nats_ci": {m: [v - 1, v + 1] for m, v in kl.items()}, "action_mse": {}}))
+
+
+DOUBLED = _arm([0, 1, 2, 3], [8.0, 10.0, 6.0, 8.0], [1.0] * 4, [10, 10, 20, 10])
+
+
+def test_a_later_sitting_pools_with_the_runs_an_earlier_report_kept(tmp_path):
+    import pandas as pd
+
+    _write_analyses(tmp_path / "s0", [("b1e-4-s0", GOOD), ("b1e-4-s0-occluded", OCCLUDED)])
+    main(["--analyses", str(tmp_path / "s0"), "--out", str(tmp_path / "r0"), "--no-figures"])
+    kept = pd.read_csv(tmp_path / "r0/views_episodes.csv")
+    assert set(kept.run) == {"b1e-4-s0", "b1e-4-s0-occluded"} and len(kept) == 2 * 4 + 5 * 2
+    # seed 0's runs are gone from the disk; seed 1 is analysed in a later sitting
+    _write_analyses(tmp_path / "s1", [("b1e-4-s1", GOOD), ("b1e-4-s1-occluded", DOUBLED)])
+    main(["--analyses", str(tmp_path / "s1"), "--out", str(tmp_path / "r1"), "--no-figures",
+          "--views-episodes", str(tmp_path / "r0/views_episodes.csv")])
+    before, after = pd.read_csv(tmp_path / "r0/views.csv"), pd.read_csv(tmp_path / "r1/views.csv")
+    pd.testing.assert_frame_equal(before, after[after.run == "b1e-4-s0"].reset_index(drop=True))
+    pooled = pd.read_csv(tmp_path / "r1/views_pooled.csv").set_index("modality").loc["agentview_image"]
+    assert pooled.seeds == "0 1" and pooled.kl_change_pct_per_seed == "-53 +100"
+    # both sittings' runs are kept again, so a third sitting pools all of them
+    assert set(pd.read_csv(tmp_path / "r1/views_episodes.csv").run) == {
+        "b1e-4-s0", "b1e-4-s0-occluded", "b1e-4-s1", "b1e-4-s1-occluded"}
+
+
+def test_a_run_on_the_disk_wins_over_the_same_run_read_back(tmp_path):
+    from nostra.workflows.views import episode_frame, with_earlier
+
+    earlier = [{"name": "b1e-4-s0/mask", **DOUBLED}, {"name": "b1e-4-s0-occluded/mask", **OCCLUDED}]
+    episode_frame(earlier).to_csv(tmp_path / "views_episodes.csv", index=False)
+    merged = with_earlier([{"name": "b1e-4-s0/mask", **GOOD}], [tmp_path / "views_episodes.csv"])
+    assert [a["name"] for a in merged] == ["b1e-4-s0-occluded", "b1e-4-s0/mask"]
+    assert merged[1]["kl_nats_episodes"] == GOOD["kl_nats_episodes"]  # the disk's, not the file's DOUBLED
+    assert merged[0]["kl_nats_episodes"]["agentview_image"] == [2.0, 3.0, 1.0, 2.0, 99.0]  # by episode 0, 1, 2, 3, 7
+
+
+@pytest.mark.parametrize("content, message", [
+    ("run,episode,steps,modality\nb-s0,0,10,pos\n", "missing column(s) kl_nats"),
+    ("run,episode,steps,modality,kl_nats\nb-s0,zero,10,pos,1.0\n", "episode and steps must be integers"),
+    ("run,episode,steps,modality,kl_nats\nb-s0,0,0,pos,1.0\n", "steps must be positive (run b-s0)"),
+    ("run,episode,steps,modality,kl_nats\nb-s0,0,10,pos,1.0\nb-s0,1,10,agentview_image,1.0\n",
+     "run b-s0 lacks some modality's KL"),
+])
+def test_a_bad_views_episodes_file_is_refused_naming_it_before_anything_is_written(tmp_path, content, message):
+    _write_analyses(tmp_path / "runs", [("b1e-4-s1", GOOD), ("b1e-4-s1-occluded", DOUBLED)])
+    bad = tmp_path / "views_episodes.csv"
+    bad.write_text(content)
+    with pytest.raises(ValueError) as e:
+        main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--views-episodes", str(bad)])
+    assert str(bad) in str(e.value) and message in str(e.value)
+    assert not (tmp_path / "out").exists()
+    with pytest.raises(FileNotFoundError, match="gone.csv: no such file"):
+        main(["--analyses", str(tmp_path / "runs"), "--out", str(tmp_path / "out"),
+              "--views-episodes", str(tmp_path / "gone.csv")])

@@ -8,7 +8,8 @@ per noise, and its false imagination on the clean demos; each analysis's one-epi
 
 Each analysis folder's name below --analyses says what it is (e.g. s0/mask); the report lists them.
 A run's folder named `<run>-occluded` or `<run>-blind` is compared with `<run>`, paired over the
-demos both analysed (nostra.workflows.views: Table 3)."""
+demos both analysed (nostra.workflows.views: Table 3); their per-episode KL goes to views_episodes.csv,
+which --views-episodes reads back, so seeds trained in other sittings are paired and pooled alike."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from nostra.workflows.command_log import command_header
 from nostra.workflows.views import figure as views_figure
 from nostra.workflows.views import markdown as views_markdown
 from nostra.workflows.views import traces_figure, training_changes
-from nostra.workflows.views import pooled_changes, view_changes
+from nostra.workflows.views import episode_frame, pooled_changes, view_changes, with_earlier
 
 
 def load(root: Path) -> list[dict]:
@@ -370,11 +371,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--reference", type=Path, default=None,
                     help="make cpu-claims' records of the same checkpoint (<evaluate>/<task>/s<seed>/best): each "
                          "setting is paired with its oracle MLI, its clean closed loop, its paper's AdaMLI and BC-LSTM")
+    ap.add_argument("--views-episodes", type=Path, nargs="+", default=[],
+                    help="earlier reports' views_episodes.csv: their runs are paired and pooled with these analyses' "
+                         "(Table 3 over sittings whose runs are no longer on this disk)")
     args = ap.parse_args(argv)
     if args.reference is not None and not args.reference.is_dir():
         raise FileNotFoundError(f"--reference {args.reference}: no such folder (make cpu-claims writes "
                                 "<runs>/evaluate/<task>/s<seed>/<checkpoint>/)")
     analyses = load(args.analyses)
+    arms = with_earlier(analyses, args.views_episodes)  # read (and checked) before anything is written
     kl, detect = kl_table(analyses), detection_table(analyses)
     args.out.mkdir(parents=True, exist_ok=True)
     kl.to_csv(args.out / "kl.csv", index=False)
@@ -382,10 +387,11 @@ def main(argv: list[str] | None = None) -> None:
     command = command_header(args.out, args.command) or \
         f"python -m nostra.workflows.offline_report --analyses {args.analyses} --out {args.out}"
     figures, sweep = ({} if args.no_figures else copy_figures(analyses, args.out)), sweep_table(analyses)
-    changes, traces, batches = view_changes(analyses), False, training_changes(analyses)
-    pooled = pooled_changes(analyses)
+    changes, traces, batches = view_changes(arms), False, training_changes(arms)
+    pooled = pooled_changes(arms)
     if len(changes):
         changes.to_csv(args.out / "views.csv", index=False)
+        episode_frame(arms).to_csv(args.out / "views_episodes.csv", index=False)
         views_figure(changes, args.out / "views.png")
         traces = traces_figure(analyses, args.out / "views_training.png")
     if len(batches):

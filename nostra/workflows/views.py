@@ -6,7 +6,9 @@ episode i starts from the same state in both and the two runs' per-episode KL ca
 together (percentile bootstrap, scipy.stats.bootstrap).
 
 An analysis folder (under offline_report's --analyses) named ``<run>-occluded`` or ``<run>-blind`` is
-paired with the one named ``<run>``; offline.json must carry the per-episode KL (``kl_nats_episodes``)."""
+paired with the one named ``<run>``; offline.json must carry the per-episode KL (``kl_nats_episodes``).
+A report keeps every paired arm's per-episode KL in views_episodes.csv; read back (``with_earlier``), those
+runs pair and pool like analyses on the disk."""
 
 from __future__ import annotations
 
@@ -36,6 +38,55 @@ def view_pairs(analyses: list[dict]) -> list[tuple[str, dict, str, dict]]:
             if r.endswith(f"-{view}") and good in by_run:
                 pairs.append((good, by_run[good], view, a))
     return pairs
+
+
+EPISODE_COLUMNS = ["run", "episode", "steps", "modality", "kl_nats"]  # views_episodes.csv, one row per arm, episode, modality
+
+
+def episode_frame(analyses: list[dict]) -> pd.DataFrame:
+    """Every paired arm's per-episode KL (mean nats per step) and step count, the long table a report keeps
+    as views_episodes.csv so that a later report can pool its seeds with runs no longer on the disk."""
+    rows, seen = [], set()
+    for run, good, view, other in view_pairs(analyses):
+        for name, a in ((run, good), (f"{run}-{view}", other)):
+            if name in seen or "kl_nats_episodes" not in a:
+                continue
+            seen.add(name)
+            for i, (_, e) in enumerate(a["episodes"]):
+                rows += [{"run": name, "episode": int(e), "steps": int(a["episode_steps"][i]), "modality": m,
+                          "kl_nats": float(kl[i])} for m, kl in a["kl_nats_episodes"].items()]
+    return pd.DataFrame(rows, columns=EPISODE_COLUMNS)
+
+
+def read_episodes(path: Path) -> list[dict]:
+    """One earlier report's views_episodes.csv, checked, as analyses ``paired_arms`` reads (one per run)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file; offline_report writes <out>/views_episodes.csv")
+    df = pd.read_csv(path)
+    if missing := [c for c in EPISODE_COLUMNS if c not in df.columns]:
+        raise ValueError(f"{path}: missing column(s) {', '.join(missing)}; expected {', '.join(EPISODE_COLUMNS)}")
+    try:
+        df = df.astype({"run": str, "episode": int, "steps": int, "modality": str, "kl_nats": float})
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{path}: episode and steps must be integers, kl_nats a number ({e})") from None
+    if (df.steps <= 0).any():
+        raise ValueError(f"{path}: steps must be positive (run {df.run[df.steps <= 0].iloc[0]})")
+    analyses = []
+    for run, g in df.groupby("run", sort=False):
+        wide = g.pivot_table(index="episode", columns="modality", values="kl_nats", sort=True)
+        if wide.isna().any().any():
+            raise ValueError(f"{path}: run {run} lacks some modality's KL on some episode")
+        steps = g.groupby("episode").steps.first().loc[wide.index]
+        analyses.append({"name": run, "episodes": [[str(path), int(e)] for e in wide.index],
+                         "episode_steps": steps.tolist(), "kl_nats_episodes": {m: wide[m].tolist() for m in wide}})
+    return analyses
+
+
+def with_earlier(analyses: list[dict], paths: list[Path]) -> list[dict]:
+    """``analyses`` and the runs of earlier reports' views_episodes.csv; a run in both: the analysis on disk."""
+    here = {a["name"].split("/")[0] for a in analyses}
+    earlier = [a for p in paths for a in read_episodes(p)]
+    return sorted(analyses + [a for a in earlier if a["name"] not in here], key=lambda a: a["name"])
 
 
 def _nats(a: dict, modalities: list[str], episodes: list[int]) -> np.ndarray:
@@ -121,6 +172,7 @@ def pooled_changes(analyses: list[dict], seed: int = 0, n_resamples: int = 10_00
     for (prefix, view), arms in groups.items():
         if len(arms) < 2:
             continue
+        arms.sort(key=lambda a: int(a[0]))
         k = len(arms)
         draw = rng.integers(k, size=(n_resamples, k))  # stage 1: which seed fills each slot
         resamples = [rng.integers(g.shape[1], size=(n_resamples, k, g.shape[1])) for _, _, g, _ in arms]
@@ -170,11 +222,11 @@ def figure(changes: pd.DataFrame, path) -> None:
     plt.close(fig)
 
 
-def training_kl(checkpoint: str, modality: str) -> pd.Series:
+def training_kl(checkpoint: str | None, modality: str) -> pd.Series:
     """A modality's KL per step over training (metrics.jsonl beside the checkpoint), by step; empty
     when the run's metrics are not there."""
-    path = Path(checkpoint).parent / "metrics.jsonl"
-    if not path.exists():
+    path = Path(checkpoint).parent / "metrics.jsonl" if checkpoint else None
+    if path is None or not path.exists():  # no checkpoint: a run read back from views_episodes.csv
         return pd.Series(dtype=float)
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     kl = {r["step"]: r["metrics"][f"kl_nats/{modality}"] for r in rows
@@ -189,7 +241,7 @@ def training_changes(analyses: list[dict], last: int = 250) -> pd.DataFrame:
     rows = []
     for run, good, view, other in view_pairs(analyses):
         for m in good.get("kl_nats_episodes", {}):
-            g, o = training_kl(good["checkpoint"], m), training_kl(other["checkpoint"], m)
+            g, o = training_kl(good.get("checkpoint"), m), training_kl(other.get("checkpoint"), m)
             if not len(g) or not len(o):
                 continue
             g, o = g[g.index > g.index.max() - last].mean(), o[o.index > o.index.max() - last].mean()
@@ -209,7 +261,7 @@ def traces_figure(analyses: list[dict], path, modality: str = FRONT_IMAGE, smoot
     panels: dict[str, dict[str, pd.Series]] = {}
     for run, good, view, other in view_pairs(analyses):
         for name, a in (("good", good), (view, other)):
-            kl = training_kl(a["checkpoint"], modality)
+            kl = training_kl(a.get("checkpoint"), modality)
             if len(kl):
                 panels.setdefault(run, {})[name] = kl.rolling(smooth, min_periods=1).mean()
     if not panels:
