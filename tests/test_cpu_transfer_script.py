@@ -1,30 +1,12 @@
 """scripts/cpu_transfer.sh (`make cpu-transfer`) run against stand-in `nostra` and `python` commands that
 log their arguments: which runs Table 4 trains for the DEMOS it is given."""
-import os
-import shutil
-import subprocess
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-STUB = """#!/usr/bin/env bash
-echo "$(basename "$0") $*" >> "$(dirname "$0")/../../calls.log"
-case "$*" in *get_task*) echo LiftD1 ;; esac
-"""
+from script_stubs import run_stubbed
 
 
-def run_script(tmp_path: Path, env: dict) -> tuple[subprocess.CompletedProcess, list[str]]:
-    (tmp_path / "scripts").mkdir()
-    for name in ("cpu_transfer.sh", "cpu_setup.sh"):
-        shutil.copy(ROOT / "scripts" / name, tmp_path / "scripts" / name)
-    bin_dir = tmp_path / ".venv/bin"
-    bin_dir.mkdir(parents=True)
-    for name in ("nostra", "python"):
-        (bin_dir / name).write_text(STUB)
-        (bin_dir / name).chmod(0o755)
-    r = subprocess.run(["bash", "scripts/cpu_transfer.sh"], cwd=tmp_path, capture_output=True, text=True,
-                       env={**os.environ, "TABLES": "4", "SEEDS": "1", "MODELS": "nostra", **env})
-    log = tmp_path / "calls.log"
-    return r, log.read_text().splitlines() if log.exists() else []
+def run_script(tmp_path: Path, env: dict):
+    return run_stubbed(tmp_path, "cpu_transfer.sh", {"TABLES": "4", "SEEDS": "1", "MODELS": "nostra", **env})
 
 
 def test_demos_names_table_4s_columns_not_the_training_collections_size(tmp_path):

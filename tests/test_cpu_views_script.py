@@ -1,31 +1,13 @@
 """scripts/cpu_views.sh (Table 3's views) run against stand-in `nostra` and `python` commands that log their
 arguments: where the report goes (OUT) and which earlier reports' runs it pools (EPISODES)."""
-import os
-import shutil
-import subprocess
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-STUB = """#!/usr/bin/env bash
-echo "$(basename "$0") $*" >> "$(dirname "$0")/../../calls.log"
-case "$*" in *get_task*) echo LiftD1 ;; esac
-"""
+from script_stubs import run_stubbed
 
 
-def run_script(tmp_path: Path, env: dict) -> tuple[subprocess.CompletedProcess, list[str]]:
-    (tmp_path / "scripts").mkdir()
-    for name in ("cpu_views.sh", "cpu_setup.sh"):
-        shutil.copy(ROOT / "scripts" / name, tmp_path / "scripts" / name)
-    bin_dir = tmp_path / ".venv/bin"
-    bin_dir.mkdir(parents=True)
-    for name in ("nostra", "python"):
-        (bin_dir / name).write_text(STUB)
-        (bin_dir / name).chmod(0o755)
+def run_script(tmp_path: Path, env: dict):
     (tmp_path / "data/runs/cpu/offline/liftd1-views/b1e-4-s3").mkdir(parents=True)  # what the analyses write
-    r = subprocess.run(["bash", "scripts/cpu_views.sh"], cwd=tmp_path, capture_output=True, text=True,
-                       env={**os.environ, "SEED": "3", "BETAS": "1e-4", "SPLITS": "held_out", **env})
-    log = tmp_path / "calls.log"
-    return r, log.read_text().splitlines() if log.exists() else []
+    return run_stubbed(tmp_path, "cpu_views.sh", {"SEED": "3", "BETAS": "1e-4", "SPLITS": "held_out", **env})
 
 
 def test_out_and_episodes_reach_the_report_and_its_logged_command(tmp_path):
