@@ -12,7 +12,6 @@ here is the larger part of the spread. Where every seed's views_episodes.csv is 
 from __future__ import annotations
 
 import argparse
-import re
 from pathlib import Path
 
 import numpy as np
