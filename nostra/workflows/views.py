@@ -279,6 +279,14 @@ def traces_figure(analyses: list[dict], path, modality: str = FRONT_IMAGE, smoot
     return True
 
 
+def pooled_rows(pooled: pd.DataFrame) -> list[str]:
+    """One Markdown row per pooled run, view and modality: the per-seed changes and the pooled ones."""
+    return [f"| {r.run}-s* | {r.view} | {r.seeds} | {r.modality} | {r.kl_change_pct_per_seed}% | "
+            f"{r.kl_change_pct:+.0f}% [{r.kl_change_pct_low:+.0f}, {r.kl_change_pct_high:+.0f}] | "
+            f"{r.share_change_pts_per_seed} | {r.share_change_pts:+.1f} [{r.share_change_pts_low:+.1f}, "
+            f"{r.share_change_pts_high:+.1f}] |" for r in pooled.itertuples()]
+
+
 def markdown(changes: pd.DataFrame, traces: bool = False, batches: pd.DataFrame | None = None,
              pooled: pd.DataFrame | None = None) -> list[str]:
     """The paired comparison as Markdown lines (none when there is nothing to compare)."""
@@ -305,10 +313,7 @@ def markdown(changes: pd.DataFrame, traces: bool = False, batches: pd.DataFrame 
                   "bootstrap interval (training seeds resampled, then episodes within each):", "",
                   "| runs | view | seeds | modality | KL change per seed | pooled | share change per seed (points) "
                   "| pooled |", "|---|---|---|---|---|---|---|---|"]
-        lines += [f"| {r.run}-s* | {r.view} | {r.seeds} | {r.modality} | {r.kl_change_pct_per_seed}% | "
-                  f"{r.kl_change_pct:+.0f}% [{r.kl_change_pct_low:+.0f}, {r.kl_change_pct_high:+.0f}] | "
-                  f"{r.share_change_pts_per_seed} | {r.share_change_pts:+.1f} [{r.share_change_pts_low:+.1f}, "
-                  f"{r.share_change_pts_high:+.1f}] |" for r in pooled.itertuples()]
+        lines += pooled_rows(pooled)
         lines.append("")
     if batches is not None and len(batches):
         lines += ["The same runs' KL on their own training batches, mean over the last 250 steps (what a training "

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from nostra.workflows.command_log import command_header
+from nostra.workflows.views import pooled_rows
 
 COLUMNS = ["run", "view", "modality", "kl_change_pct", "share_change_pts"]
 STATS = (("kl_change_pct", "{:+.0f}"), ("share_change_pts", "{:+.1f}"))  # pooled columns, per-seed format
@@ -72,11 +73,7 @@ def markdown(pooled: pd.DataFrame, reports: list[Path], header: list[str]) -> st
              "seed-level only, the episodes within each seed are not resampled.", "",
              "| runs | view | seeds | modality | KL change per seed | pooled [95% t CI] | share change per seed "
              "(points) | pooled |", "|---|---|---|---|---|---|---|---|"]
-    lines += [f"| {r.run}-s* | {r.view} | {r.seeds} | {r.modality} | {r.kl_change_pct_per_seed}% | "
-              f"{r.kl_change_pct:+.0f}% [{r.kl_change_pct_low:+.0f}, {r.kl_change_pct_high:+.0f}] | "
-              f"{r.share_change_pts_per_seed} | {r.share_change_pts:+.1f} [{r.share_change_pts_low:+.1f}, "
-              f"{r.share_change_pts_high:+.1f}] |" for r in pooled.itertuples()]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + pooled_rows(pooled)) + "\n"
 
 
 def write_pool(reports: list[Path], out: Path, command: str | None = None) -> str:
