@@ -111,14 +111,19 @@ def pool_success(success: pd.DataFrame, kind: Kind = CLAIMS) -> pd.DataFrame:
     return out[[c for c in success.columns if c in out.columns]]  # the reports' columns, in their order
 
 
-def _episodes(r) -> tuple[np.ndarray, np.ndarray]:
-    """One seed's paired episodes rebuilt from its 2x2 table (episode order does not enter any statistic)."""
+def episodes_from_counts(r, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """One seed's paired episodes (a, b) rebuilt from a paired row's n, rate_a, a_only and b_only: its 2x2
+    table (episode order does not enter any statistic); ``what`` names the row in the error."""
     both = int(round(r.n * r.rate_a)) - int(r.a_only)
     neither = int(r.n) - both - int(r.a_only) - int(r.b_only)
     if min(both, neither) < 0:
-        raise ValueError(f"paired row {r.a} - {r.b} (seed {r.seed}): counts do not add up to n = {r.n}")
+        raise ValueError(f"paired row {what}: counts do not add up to n = {r.n}")
     counts = [both, int(r.a_only), int(r.b_only), neither]
     return np.repeat([True, True, False, False], counts), np.repeat([True, False, True, False], counts)
+
+
+def _episodes(r) -> tuple[np.ndarray, np.ndarray]:
+    return episodes_from_counts(r, f"{r.a} - {r.b} (seed {r.seed})")
 
 
 def pool_pairs(pairs: pd.DataFrame, kind: Kind = CLAIMS) -> pd.DataFrame:
