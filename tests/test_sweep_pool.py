@@ -43,6 +43,7 @@ def test_pooled_cells_and_pairs_add_the_seeds_tables(tmp_path):
     assert (p.n, p.a_only, p.b_only) == (100, 3, 14) and p["diff"] == pytest.approx(-0.11) and p.p < 0.05
     assert not ((pairs.seed == "pooled") & (pairs.beta == 1e-5)).any()
     assert "| 0.01 | 0.1 | BC-NOSTRA, none: this setting - the paper's | pooled | 100 | -11 [" in text
+    assert (tmp_path / "out/sweep_pooled.png").stat().st_size > 0 and "(sweep_pooled.png)" in text
 
 
 def test_seeds_must_name_each_report_once(tmp_path):

@@ -1,7 +1,8 @@
 """NOSTRA's beta / gamma sensitivity pooled over training seeds, from each seed's sweep report
 (scripts/cpu_sweep.sh, nostra.workflows.sweep_report): success per setting and cell, and the paired
 comparisons (each setting against the paper's on the same initial states; MLI and AdaMLI against the
-closed loop under mask) pooled exactly from each seed's 2x2 table, as nostra.workflows.claims_pool does.
+closed loop under mask) pooled exactly from each seed's 2x2 table, as nostra.workflows.claims_pool does;
+one figure of each setting's success per seed and pooled.
 
     python -m nostra.workflows.sweep_pool --reports reports/cpu/liftd1/sweep reports/cpu/liftd1/sweep-s2 \
         --seeds 0 2 --out reports/cpu/liftd1/sweep-pooled-s02
@@ -118,16 +119,45 @@ def markdown(cells: pd.DataFrame, pairs: pd.DataFrame, seeds: list[str]) -> list
     return text
 
 
+def figure(cells: pd.DataFrame, seeds: list[str], path: Path) -> None:
+    """One panel per cell: each setting's success per training seed (small) and pooled (large, with its
+    Wilson interval)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    settings = list(dict.fromkeys(zip(cells.beta, cells.gamma)))
+    fig, axes = plt.subplots(1, len(CELLS), figsize=(3.2 * len(CELLS), 3.6), sharey=True)
+    for ax, (noise, v) in zip(axes, CELLS):
+        c = cells[(cells.noise == noise) & (cells.variant == v)]
+        for j, seed in enumerate([*seeds, POOLED]):
+            s = c[c.seed == seed]
+            x = [settings.index(b_g) + 0.12 * (j - len(seeds) / 2) for b_g in zip(s.beta, s.gamma)]
+            style = dict(marker="o", ms=7, capsize=3, color="k") if seed == POOLED else dict(marker=".")
+            yerr = [100 * (s.rate - s.ci_low), 100 * (s.ci_high - s.rate)] if seed == POOLED else None
+            ax.errorbar(x, 100 * s.rate, yerr=yerr, ls="none", label=POOLED if seed == POOLED else f"seed {seed}",
+                        **style)
+        ax.set_xticks(range(len(settings)), [f"β {b:g}\nγ {g:g}" for b, g in settings], fontsize=7)
+        ax.set_title(f"{LABELS[v]}, {noise}", fontsize=9), ax.set_ylim(-5, 105)
+    axes[0].set_ylabel("success (%)"), axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def write_pooled(reports: list[Path], seeds: list[str], out: Path, header: list[str] = ()) -> str:
     cells, pairs = read_reports(reports, seeds)
     cells, pairs = pool_cells(cells), pool_pairs(pairs)
     text = ["# NOSTRA's sensitivity to beta and gamma, pooled over training seeds", "", *[h for h in header if h],
             f"- Training seeds: {', '.join(seeds)} (each report names the command, machine and wall time of its runs)",
             f"- Pooled from the reports {', '.join(f'`{r}`' for r in reports)}: every (training seed, episode) once; "
-            "a cell or comparison is pooled only where every seed has it.", "", *markdown(cells, pairs, seeds), ""]
+            "a cell or comparison is pooled only where every seed has it.", "", *markdown(cells, pairs, seeds),
+            "![success per setting, each seed and pooled](sweep_pooled.png)", ""]
     out.mkdir(parents=True, exist_ok=True)
     cells.to_csv(out / "success.csv", index=False)
     pairs.to_csv(out / "paired.csv", index=False)
+    figure(cells, seeds, out / "sweep_pooled.png")
     (out / "sweep_pooled.md").write_text("\n".join(text))
     return "\n".join(text)
 
