@@ -13,6 +13,8 @@
 #     variants other than the default go into <setting>/<variants>, so a setting run before is not taken for them
 #   ADAMLI="{warmup: 0}" VARIANTS="nostra_mli nostra_adamli" ...   # AdaMLI's settings changed (AdaMLIConfig's keys):
 #     its runs under <noise>-adamli-<settings> and its report apart (e.g. horizon-wrist_mask-s4-adamli-warmup0)
+#   CAPACITY=matched WINDOWS=5-200 ...   # BC-RSSM at NOSTRA's parameter count (make cpu-claims with CAPACITY=matched
+#     first; NOSTRA's configured run is linked): runs and report under data/runs/cpu-matched, reports/cpu-matched
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -25,10 +27,11 @@ VARIANTS=${VARIANTS:-nostra_mli rssm_li}
 ADAMLI=${ADAMLI:-}
 TAG=$(echo "$ADAMLI" | tr -d ' {}:' | tr ',' '-')   # {warmup: 0, f_c: 12} -> warmup0-f_c12 (no comma: Hydra's list)
 ADA=(${ADAMLI:+"evaluate.variants.nostra_adamli.adamli=$ADAMLI"})
-source scripts/cpu_setup.sh   # OBS -> PROFILE, RUNS, REPORTS
+source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
 start=$(date +%s)
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 ROOT=$RUNS/evaluate/$TASK-horizon/s$SEED/$NOISE${TAG:+-adamli-$TAG}
+case "$CAPACITY $VARIANTS" in matched*nostra*) [ -e "$RUNS/train/pretrain-nostra-$NAME-s$SEED" ] || link_configured nostra $SEED ;; esac
 drop=$(for v in lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli; do
   case " $VARIANTS " in *" $v "*) ;; *) printf 'evaluate.variants.%s=null ' $v ;; esac; done)
 IFS=';' read -ra SETTINGS <<< "$WINDOWS"
@@ -53,6 +56,7 @@ PY
 )
 # AdaMLI's settings changed: the claims cells' AdaMLI (the paper's) is not this study's, so it is not read
 EXCLUDE=(${ADAMLI:+--reference-excludes nostra_adamli})
+CAP=$([ "$CAPACITY" = configured ] || echo " CAPACITY=$CAPACITY")   # the command as run
 python -m nostra.workflows.horizon_report --evaluations "$ROOT" --reference "$RUNS/evaluate/$TASK/s$SEED/best" \
   --reference-windows "$TASK_WINDOWS" "${EXCLUDE[@]}" --horizon "$HORIZON" --noise "$NOISE" --out "$OUT" --wall-seconds $(( $(date +%s) - start )) \
-  --command "OBS=$OBS TASK=$TASK SEED=$SEED WINDOWS=\"$WINDOWS\" NOISE=$NOISE EPISODES=$EPISODES VARIANTS=\"$VARIANTS\"${ADAMLI:+ ADAMLI=\"$ADAMLI\"} OUT=$OUT bash scripts/cpu_horizon.sh"
+  --command "OBS=$OBS$CAP TASK=$TASK SEED=$SEED WINDOWS=\"$WINDOWS\" NOISE=$NOISE EPISODES=$EPISODES VARIANTS=\"$VARIANTS\"${ADAMLI:+ ADAMLI=\"$ADAMLI\"} OUT=$OUT bash scripts/cpu_horizon.sh"

@@ -1,4 +1,4 @@
-# Sourced by the CPU-profile scripts (cpu.sh, cpu_claims.sh, cpu_transfer.sh, cpu_adamli_sweep.sh): where a study lives, from
+# Sourced by the CPU-profile scripts (cpu.sh, cpu_claims.sh, cpu_transfer.sh, cpu_adamli_sweep.sh, cpu_horizon.sh): where a study lives, from
 #   OBS=rgb (two cameras + proprioception: Table 1; default) | rgbd (+ agentview depth: Table 2, profile cpu_rgbd)
 #   CAPACITY=configured (default) | matched (BC-LSTM's and BC-RSSM's widths give NOSTRA's parameter count,
 #            nostra.workflows.capacity; NOSTRA, the reference, is the configured run, linked, not retrained)
@@ -9,7 +9,7 @@
 #   HORIZON=<n> (optional) rollout steps instead of the profile's eval_horizon: the cells (and the reports)
 #            are named <task>-h<n>, so that they never mix with, or are kept as, the profile horizon's
 # Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>]), REPORTS (reports/cpu[...]) and EVAL_NAME;
-# defines collection, demo_collections, same_as_best and records.
+# defines collection, demo_collections, same_as_best, records and link_configured.
 OBS=${OBS:-rgb}
 CAPACITY=${CAPACITY:-configured}
 DEMOS=${DEMOS:-}
@@ -54,6 +54,15 @@ import json, sys
 run = json.load(open(sys.argv[1]))
 sys.exit(0 if ((run.get("rollouts") or {}).get("best") or {}).get("step") == run["steps"] else 1)
 PY
+}
+
+# CAPACITY=matched: NOSTRA, the reference, is the configured run (same OBS), linked into RUNS, not retrained
+link_configured() {  # $1 = model, $2 = training seed; needs NAME (the task's name)
+  local ref=cpu${SUFFIX%-matched}/train/pretrain-$1-$NAME-s$2
+  [ -f "data/runs/$ref/run.json" ] ||
+    { echo "$0: CAPACITY=matched needs data/runs/$ref: run it first with CAPACITY=configured" >&2; exit 2; }
+  mkdir -p "$RUNS/train" && ln -sfn "../../$ref" "$RUNS/train/pretrain-$1-$NAME-s$2"
+  echo "[$(date +%H:%M:%S)] $1 seed $2: the configured run, linked"
 }
 
 # a demo collection in the store: generated (unless its file exists; generation also skips finished

@@ -7,11 +7,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def setup(env: dict, body: str) -> subprocess.CompletedProcess:
-    """Source cpu_setup.sh with `env`, `collection` replaced by an echo (nothing generated), then run body."""
+def setup(env: dict, body: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """Source cpu_setup.sh with `env`, `collection` replaced by an echo (nothing generated), then run body
+    in `cwd` (where its data/ is)."""
     path = f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"
-    script = f'source scripts/cpu_setup.sh; collection() {{ echo "collection $*"; }}; {body}'
-    return subprocess.run(["bash", "-c", script], cwd=ROOT, capture_output=True, text=True,
+    script = f'source {ROOT}/scripts/cpu_setup.sh; collection() {{ echo "collection $*"; }}; {body}'
+    return subprocess.run(["bash", "-c", script], cwd=cwd, capture_output=True, text=True,
                           env={**os.environ, "PATH": path, **env})
 
 
@@ -64,3 +65,16 @@ def test_records_finds_a_variants_episodes_in_the_cell_or_a_runs_subfolder(tmp_p
     r = setup({}, f'NAME=LiftD1; for v in rssm diffusion lstm; do records {cell} none $v || echo "$v: none"; done')
     assert r.stdout.splitlines() == [f"{cell}/records/LiftD1/none/rssm_seed1000.npz",
                                      f"{cell}/diffusion/records/LiftD1/none/diffusion_seed1000.npz", "lstm: none"]
+
+
+def test_matched_capacity_links_the_configured_run_or_names_the_missing_one(tmp_path):
+    body = 'NAME=LiftD1; link_configured nostra 2 && readlink -f "$RUNS/train/pretrain-nostra-LiftD1-s2"'
+    r = setup({"CAPACITY": "matched", "OBS": "rgbd"}, body, cwd=tmp_path)
+    assert r.returncode == 2 and "data/runs/cpu-rgbd/train/pretrain-nostra-LiftD1-s2" in r.stderr
+    assert "CAPACITY=configured" in r.stderr and not (tmp_path / "data/runs/cpu-rgbd-matched").exists()
+    configured = tmp_path / "data/runs/cpu-rgbd/train/pretrain-nostra-LiftD1-s2"
+    configured.mkdir(parents=True)
+    (configured / "run.json").write_text("{}")
+    r = setup({"CAPACITY": "matched", "OBS": "rgbd"}, body, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[-1] == str(configured)  # data/runs/cpu-rgbd-matched/train/... points there
