@@ -48,11 +48,7 @@ for seed in $SEEDS; do
     if [ "$CAPACITY" = matched ]; then
       case $model in
         lstm|rssm) width=$(python -m nostra.workflows.capacity --profile $PROFILE --task $TASK --override $model) ;;
-        *) ref=cpu${SUFFIX%-matched}/train/pretrain-$model-$NAME-s$seed  # the reference: the configured run
-           [ -f "data/runs/$ref/run.json" ] ||
-             { echo "cpu.sh: CAPACITY=matched needs data/runs/$ref: run it first with CAPACITY=configured" >&2; exit 2; }
-           mkdir -p "$RUNS/train" && ln -sfn "../../$ref" "$RUNS/train/pretrain-$model-$NAME-s$seed"
-           log "train $model seed $seed: the configured run, linked"; continue ;;
+        *) link_configured $model $seed; continue ;;  # the reference: the configured run
       esac
     fi
     minutes=$MINUTES extra=""
