@@ -31,7 +31,7 @@ source scripts/cpu_setup.sh   # OBS, CAPACITY -> PROFILE, RUNS, REPORTS
 start=$(date +%s)
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 ROOT=$RUNS/evaluate/$TASK-horizon/s$SEED/$NOISE${TAG:+-adamli-$TAG}
-case "$CAPACITY $VARIANTS" in matched*nostra*) [ -e "$RUNS/train/pretrain-nostra-$NAME-s$SEED" ] || link_configured nostra $SEED ;; esac
+case "$CAPACITY $VARIANTS" in matched*nostra*) link_configured nostra $SEED ;; esac   # as make cpu-claims links it
 drop=$(for v in lstm diffusion rssm rssm_li nostra nostra_mli nostra_adamli; do
   case " $VARIANTS " in *" $v "*) ;; *) printf 'evaluate.variants.%s=null ' $v ;; esac; done)
 IFS=';' read -ra SETTINGS <<< "$WINDOWS"
