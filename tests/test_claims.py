@@ -216,7 +216,7 @@ def test_pooling_refuses_a_seed_twice_and_a_missing_file(tmp_path):
 
     _scenario(tmp_path / "ev", mli_mask=[True] * 10, lstm_mask=[False] * 10)
     write_report(tmp_path / "ev", tmp_path / "both")
-    with pytest.raises(ValueError, match="training seed 0 is in both"):
+    with pytest.raises(ValueError, match="training seed 0.s cell best / .* is in both"):
         write_pooled([tmp_path / "both", tmp_path / "both"], tmp_path / "out")
     (tmp_path / "broken").mkdir()
     (tmp_path / "broken" / "table1.csv").write_text("checkpoint,seed\nbest,3\n")

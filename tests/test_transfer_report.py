@@ -94,6 +94,45 @@ def test_pooling_seed_reports_equals_pooling_their_records(tmp_path):
     assert "## Claims (pooled)" in text and (tmp_path / "pooled" / "transfer.png").is_file()
 
 
+def test_a_seed_split_over_two_reports_pools_once_per_cell(tmp_path):
+    """Seed 1's Table 4 from one sitting and its Table 5 from another pool with seed 0; a cell of a seed in two
+    reports is refused, unless --seeds leaves that seed out."""
+    import shutil
+
+    import pandas as pd
+
+    from nostra.workflows.claims_pool import write_pooled
+
+    _scenario(tmp_path / "ev0")
+    write_report(tmp_path / "ev0", tmp_path / "report0", target_demos=10)
+    _write(tmp_path / "ev4", 1, "finetune-n10", "nostra", [True] * 12 + [False] * 8)
+    _write(tmp_path / "ev4", 1, "finetune-n10", "rssm", [True] * 14 + [False] * 6)
+    write_report(tmp_path / "ev4", tmp_path / "table4", target_demos=10)
+    _write(tmp_path / "ev5", 1, "cotrain-target_only", "nostra", [False] * 10 + [True] * 10)
+    _write(tmp_path / "ev5", 2, "finetune-n10", "nostra", [True] * 20)  # a third seed, in this report only
+    _write(tmp_path / "ev5", 2, "finetune-n10", "rssm", [True] * 20)
+    write_report(tmp_path / "ev5", tmp_path / "table5", target_demos=10)
+    write_pooled([tmp_path / "report0", tmp_path / "table4", tmp_path / "table5"], tmp_path / "pooled")
+    pairs = pd.read_csv(tmp_path / "pooled" / "paired.csv", dtype={"seed": str})
+    pooled = pairs[pairs.seed == "pooled"].set_index(["a_setting", "a", "b_setting", "b"])
+    r = pooled.loc[("finetune-n10", "nostra", "finetune-n10", "rssm")]  # seeds 0, 1 and 2: 60 episodes
+    assert r.n == 60 and r.a_only == 16 + 0 + 0 and r.b_only == 0 + 2 + 0
+    # seed 1's fine-tuned and from-scratch runs sit in different reports: no pair, so no pool of it
+    assert ("finetune-n10", "nostra", "cotrain-target_only", "nostra") not in pooled.index
+
+    shutil.copytree(tmp_path / "table5", tmp_path / "table5-again")
+    with pytest.raises(ValueError, match="training seed 1's cell cotrain-target_only / nostra is in both"):
+        write_pooled([tmp_path / "table5", tmp_path / "table5-again"], tmp_path / "out")
+    with pytest.raises(ValueError, match="training seed 2's cell finetune-n10 / nostra is in both"):
+        write_pooled([tmp_path / "report0", tmp_path / "table5", tmp_path / "table5-again"], tmp_path / "out",
+                     only=["0", "2"])
+    write_pooled([tmp_path / "report0", tmp_path / "table4", tmp_path / "table5"], tmp_path / "out", only=["0", "1"])
+    s = pd.read_csv(tmp_path / "out" / "success.csv", dtype={"seed": str})
+    assert set(s.seed) == {"0", "1", "pooled"}
+    with pytest.raises(ValueError, match="training seed.s. 7 in none of the reports; they hold 0, 1, 2"):
+        write_pooled([tmp_path / "report0", tmp_path / "table4", tmp_path / "table5"], tmp_path / "out", only=["7"])
+
+
 def test_pooling_refuses_reports_of_two_kinds(tmp_path):
     from nostra.workflows.claims_pool import write_pooled
 

@@ -63,32 +63,33 @@ def _read(path: Path, columns: list[str]) -> pd.DataFrame:
 def read_reports(reports: list[Path], only: list[str] | None = None
                  ) -> tuple[Kind, pd.DataFrame, pd.DataFrame, pd.DataFrame]:
     """The reports' kind and the per-seed rows of their success table, paired.csv and (claims)
-    false_imagination.csv, of the training seeds ``only`` (default: all); a training seed found in two
+    false_imagination.csv, of the training seeds ``only`` (default: all). A seed's cells may come from
+    several reports (Table 4 from one sitting, Table 5 from another); one cell of one seed found in two
     reports is an error (it would count twice)."""
     kinds = {r: kind_of(r) for r in reports}
     if len({k.name for k in kinds.values()}) > 1:
         raise ValueError("reports of different kinds: " + ", ".join(f"{r} ({k.name})" for r, k in kinds.items()))
     kind = kinds[reports[0]]
-    success, pairs, fir, owner = [], [], [], {}
+    success, pairs, fir, held, owner = [], [], [], set(), {}
+    keep = (lambda d: d) if only is None else (lambda d: d[d.seed.isin(only)])
     for r in reports:
         s = _read(r / kind.success_file, ["seed", *kind.cell, "k", "n"])
-        for seed in sorted(set(s.seed)):
-            if seed in owner:
-                raise ValueError(f"training seed {seed} is in both {owner[seed]} and {r}; pool each seed once")
-            owner[seed] = r
-        success.append(s)
-        pairs.append(_read(r / "paired.csv", kind.pair + COUNTS))
+        held |= set(s.seed)
+        for seed, *cell in keep(s)[["seed", *kind.cell]].itertuples(index=False):
+            if (seed, *cell) in owner:
+                raise ValueError(f"training seed {seed}'s cell {' / '.join(map(str, cell))} is in both "
+                                 f"{owner[seed, *cell]} and {r}; pool each seed's cell once")
+            owner[seed, *cell] = r
+        success.append(keep(s))
+        pairs.append(keep(_read(r / "paired.csv", kind.pair + COUNTS)))
         if (r / "false_imagination.csv").is_file():
-            fir.append(_read(r / "false_imagination.csv", ["checkpoint", "seed", "mean", "count"]))
-    if only is not None:
-        if unknown := sorted(set(only) - set(owner), key=int):
-            raise ValueError(f"training seed(s) {', '.join(unknown)} in none of the reports; they hold "
-                             f"{', '.join(sorted(owner, key=int))}")
-        owner = {s: r for s, r in owner.items() if s in only}
-        keep = lambda dfs: [d[d.seed.isin(only)] for d in dfs]  # noqa: E731
-        success, pairs, fir = keep(success), keep(pairs), keep(fir)
-    if len(owner) < 2:
-        raise ValueError(f"{', '.join(map(str, reports))}: {len(owner)} training seed(s); pooling needs two or more")
+            fir.append(keep(_read(r / "false_imagination.csv", ["checkpoint", "seed", "mean", "count"])))
+    if only is not None and (unknown := sorted(set(only) - held, key=int)):
+        raise ValueError(f"training seed(s) {', '.join(unknown)} in none of the reports; they hold "
+                         f"{', '.join(sorted(held, key=int))}")
+    seeds = {key[0] for key in owner}
+    if len(seeds) < 2:
+        raise ValueError(f"{', '.join(map(str, reports))}: {len(seeds)} training seed(s); pooling needs two or more")
     return kind, pd.concat(success), pd.concat(pairs), pd.concat(fir) if fir else pd.DataFrame()
 
 
