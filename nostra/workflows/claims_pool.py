@@ -75,12 +75,13 @@ def read_reports(reports: list[Path], only: list[str] | None = None
     for r in reports:
         s = _read(r / kind.success_file, ["seed", *kind.cell, "k", "n"])
         held |= set(s.seed)
-        for seed, *cell in keep(s)[["seed", *kind.cell]].itertuples(index=False):
+        s = keep(s)
+        for seed, *cell in s[["seed", *kind.cell]].itertuples(index=False):
             if (seed, *cell) in owner:
                 raise ValueError(f"training seed {seed}'s cell {' / '.join(map(str, cell))} is in both "
                                  f"{owner[seed, *cell]} and {r}; pool each seed's cell once")
             owner[seed, *cell] = r
-        success.append(keep(s))
+        success.append(s)
         pairs.append(keep(_read(r / "paired.csv", kind.pair + COUNTS)))
         if (r / "false_imagination.csv").is_file():
             fir.append(keep(_read(r / "false_imagination.csv", ["checkpoint", "seed", "mean", "count"])))
