@@ -197,3 +197,22 @@ def test_the_command_refuses_a_bad_episodes_file_before_logging_itself(tmp_path)
         main(["--evaluations", str(tmp_path / "ev"), "--out", str(tmp_path / "out"), "--command", "x",
               "--episodes", str(tmp_path / "nope.csv")])
     assert not (tmp_path / "out").exists()  # no commands.jsonl entry for a run that did not happen
+
+
+def test_seeds_keeps_only_the_chosen_training_seeds(tmp_path):
+    """A seed reported apart from a sibling whose records sit on the same disk: its pooled tables are its own."""
+    import pandas as pd
+
+    from nostra.workflows.transfer_report import main
+
+    _scenario(tmp_path / "ev")
+    _write(tmp_path / "ev", 1, "cotrain-target_only", "nostra", [False] * 20)  # another seed on this disk
+    write_report(tmp_path / "ev", tmp_path / "both", target_demos=10)
+    assert "## Training seed 1" in (tmp_path / "both" / "transfer.md").read_text()
+    report = write_report(tmp_path / "ev", tmp_path / "s0", target_demos=10, seeds=[0])
+    assert "## Training seed 1" not in report and "## Training seed pooled" not in report
+    ep = pd.read_csv(tmp_path / "s0" / "episodes.csv")
+    assert set(ep.seed) == {0} and len(ep) == 20 * 8
+    with pytest.raises(FileNotFoundError, match=r"no episodes of training seeds \[2\] under .*ev/s<seed>"):
+        main(["--evaluations", str(tmp_path / "ev"), "--out", str(tmp_path / "s2"), "--command", "x", "--seeds", "2"])
+    assert not (tmp_path / "s2").exists()  # refused before its command is logged beside the report

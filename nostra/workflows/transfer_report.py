@@ -90,6 +90,17 @@ def episodes(evaluations: Path, earlier: list[Path] = ()) -> pd.DataFrame:
     return df.drop_duplicates(EPISODE_KEY, keep="last").reset_index(drop=True)
 
 
+def chosen_episodes(evaluations: Path, earlier: list[Path] = (), seeds: list[int] | None = None) -> pd.DataFrame:
+    """``episodes``, only these training seeds' (a seed reported apart from its siblings on this disk)."""
+    df = episodes(evaluations, earlier)
+    if seeds is not None:
+        df = df[df.seed.astype(int).isin(seeds)].reset_index(drop=True)
+        if df.empty:
+            raise FileNotFoundError(f"no episodes of training seeds {seeds} under {evaluations}/s<seed>/<setting>"
+                                    f"/**/records" + (" or in the --episodes files" if earlier else ""))
+    return df
+
+
 def success_table(df: pd.DataFrame) -> pd.DataFrame:
     """Success per (seed or pooled, setting, variant): k, n, rate and its 95% Wilson interval."""
     t = _with_pooled(df).groupby(["seed", "setting", "variant"])["success"].agg(k="sum", n="count").reset_index()
@@ -233,8 +244,8 @@ def figure(success: pd.DataFrame, path: Path) -> None:
 
 
 def write_report(evaluations: Path, out: Path, header: list[str] = (), target_demos: int | None = None,
-                 earlier: list[Path] = ()) -> str:
-    df = episodes(evaluations, earlier)
+                 earlier: list[Path] = (), seeds: list[int] | None = None) -> str:
+    df = chosen_episodes(evaluations, earlier, seeds)
     out.mkdir(parents=True, exist_ok=True)
     success, pairs = success_table(df), paired_table(df, target_demos)
     df.sort_values(EPISODE_KEY).to_csv(out / "episodes.csv", index=False)
@@ -266,12 +277,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--note", action="append", default=[], help="a line for the header")
     ap.add_argument("--episodes", nargs="+", type=Path, default=[],
                     help="earlier reports' episodes.csv, read beside the records (cells whose records are elsewhere)")
+    ap.add_argument("--seeds", nargs="+", type=int, default=None,
+                    help="only these training seeds (default: every s<seed> folder and earlier episode)")
     args = ap.parse_args(argv)
-    read_episodes(args.episodes)  # a bad file is refused before the header logs this command beside the report
+    chosen_episodes(args.evaluations, args.episodes, args.seeds)  # bad input is refused before the header logs it
     extra = [f"- Episodes read from earlier reports too: {', '.join(f'`{p}`' for p in args.episodes)}"] \
         if args.episodes else []
     header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note, extra, out=args.out)
-    print(write_report(args.evaluations, args.out, header, args.target_demos, args.episodes))
+    print(write_report(args.evaluations, args.out, header, args.target_demos, args.episodes, args.seeds))
 
 
 if __name__ == "__main__":
