@@ -18,6 +18,7 @@
 #   TABLES=5 SEEDS=1 OUT=reports/cpu/liftd1/transfer-s1 make cpu-transfer   # a seed reported apart
 #   TABLES=5 SETTINGS="target_only obj_skill" make cpu-transfer               # some of Table 5's columns
 #   EPISODES=reports/cpu/liftd1/transfer/episodes.csv ...   # pair with cells whose records are not on this disk
+# The report holds SEEDS' cells only (other seeds' records on this disk or in EPISODES are left out).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export PATH="$PWD/.venv/bin:$PATH"
@@ -129,7 +130,7 @@ if has 5; then
 fi
 
 python -m nostra.workflows.transfer_report --evaluations "$EVAL" --out "$OUT" --target-demos $N_TARGET \
-  ${EPISODES:+--episodes $EPISODES} \
+  --seeds $SEEDS ${EPISODES:+--episodes $EPISODES} \
   --command "TASK=$TASK SEEDS=\"$SEEDS\" TABLES=\"$TABLES\" MODELS=\"$MODELS\" COTRAIN_MODELS=\"$COTRAIN_MODELS\" SETTINGS=\"$SETTINGS\" DEMOS=\"$FT_DEMOS\" N_TARGET=$N_TARGET BUDGET_OBJ=$BUDGET_OBJ BUDGET_ALL=$BUDGET_ALL LIBRARY=\"$LIBRARY\" MINUTES_PRE=$MINUTES_PRE MINUTES_FT=$MINUTES_FT OUT=$OUT${EPISODES:+ EPISODES=\"$EPISODES\"} make cpu-transfer" \
   --note "Pretraining: ${TASK}_occluded_pre_cpu (agent view occluded, seeds 2000+), $MINUTES_PRE min per model; fine-tuning and co-training: $MINUTES_FT min, a 10-episode check every $ROLLOUT_EVERY steps" \
   --note "Retrieval index (target never retrieved): $pool" \

@@ -50,7 +50,7 @@ def test_episodes_reach_the_report_and_its_command(tmp_path):
                                      "EPISODES": "reports/a/episodes.csv reports/b/episodes.csv"})
     assert r.returncode == 0, r.stderr
     report = [c for c in calls if "transfer_report" in c][0]
-    assert "--episodes reports/a/episodes.csv reports/b/episodes.csv --command" in report
+    assert "--seeds 1 --episodes reports/a/episodes.csv reports/b/episodes.csv --command" in report  # SEEDS' only
     assert 'EPISODES="reports/a/episodes.csv reports/b/episodes.csv" make cpu-transfer' in report
     (tmp_path / "none").mkdir()
     _, calls = run_script(tmp_path / "none", {"TABLES": "5", "SETTINGS": "target_only"})  # none given: none passed
