@@ -91,7 +91,7 @@ def episodes(evaluations: Path, earlier: list[Path] = ()) -> pd.DataFrame:
 
 
 def chosen_episodes(evaluations: Path, earlier: list[Path] = (), seeds: list[int] | None = None) -> pd.DataFrame:
-    """``episodes``, only these training seeds' (a seed reported apart from its siblings on this disk)."""
+    """``episodes`` of the training ``seeds`` only (a seed reported apart from its siblings on this disk)."""
     df = episodes(evaluations, earlier)
     if seeds is not None:
         df = df[df.seed.astype(int).isin(seeds)].reset_index(drop=True)
