@@ -244,8 +244,9 @@ def figure(success: pd.DataFrame, path: Path) -> None:
 
 
 def write_report(evaluations: Path, out: Path, header: list[str] = (), target_demos: int | None = None,
-                 earlier: list[Path] = (), seeds: list[int] | None = None) -> str:
-    df = chosen_episodes(evaluations, earlier, seeds)
+                 earlier: list[Path] = (), seeds: list[int] | None = None, chosen: pd.DataFrame | None = None) -> str:
+    """``chosen``: the episodes, read already by ``chosen_episodes`` (main reads them before logging its command)."""
+    df = chosen_episodes(evaluations, earlier, seeds) if chosen is None else chosen
     out.mkdir(parents=True, exist_ok=True)
     success, pairs = success_table(df), paired_table(df, target_demos)
     df.sort_values(EPISODE_KEY).to_csv(out / "episodes.csv", index=False)
@@ -280,11 +281,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=None,
                     help="only these training seeds (default: every s<seed> folder and earlier episode)")
     args = ap.parse_args(argv)
-    chosen_episodes(args.evaluations, args.episodes, args.seeds)  # bad input is refused before the header logs it
+    chosen = chosen_episodes(args.evaluations, args.episodes, args.seeds)  # bad input: refused before the header logs it
     extra = [f"- Episodes read from earlier reports too: {', '.join(f'`{p}`' for p in args.episodes)}"] \
         if args.episodes else []
     header = header_lines(args.evaluations, args.command, args.wall_seconds, args.note, extra, out=args.out)
-    print(write_report(args.evaluations, args.out, header, args.target_demos, args.episodes, args.seeds))
+    print(write_report(args.evaluations, args.out, header, args.target_demos, chosen=chosen))
 
 
 if __name__ == "__main__":
