@@ -343,3 +343,32 @@ def test_diffusion_claim_has_its_own_bars(tmp_path):
     lines = "\n".join(verdicts(success_table(df), paired_table(df), "best"))
     assert "| Diffusion Policy clean >= 85% (30%) | no |" in lines and lines.count("| shown |") == 3
     assert "above Diffusion Policy under mask with McNemar p < 0.05 (+100 points, p = 1.9e-06) | not testable (shown" in lines
+
+
+def test_table2_diffusion_rows_are_paired_and_gated_by_its_bars(tmp_path):
+    """OBS=rgbd with a Diffusion Policy: AdaMLI and oracle MLI above it under rgb, rgbd, all, paired, each gated
+    by Diffusion Policy's own clean and blind bars (listed once)."""
+    for noise in ("none", "blind", "rgb", "rgbd", "all"):
+        _write(tmp_path, 0, "best", noise, "lstm", [noise == "none"] * 10)
+        _write(tmp_path, 0, "best", noise, "diffusion", [noise == "none"] * 10)
+        nostra = [True] * 10 if noise == "none" else [True] * 2 + [False] * 8
+        if noise != "blind":
+            _write(tmp_path, 0, "best", noise, "nostra", nostra)
+            _write(tmp_path, 0, "best", noise, "nostra_adamli", [True] * 10 if noise != "all" else [True] * 3 + [False] * 7)
+        if noise not in ("none",):
+            _write(tmp_path, 0, "best", noise, "nostra_mli", [noise != "blind"] * 10)
+    df = load_records(tmp_path)
+    pairs = paired_table(df)
+    r = pairs[(pairs.seed == "pooled") & (pairs.a == "nostra_mli") & (pairs.b == "diffusion") & (pairs.noise == "all")]
+    assert len(r) == 1 and r["diff"].iloc[0] == 1.0
+    lines = "\n".join(verdicts(success_table(df), pairs, "best"))
+    assert lines.count("| Diffusion Policy clean >= 85% (100%) | yes |") == 1
+    assert "| BC-NOSTRA + AdaMLI above Diffusion Policy under rgb with McNemar p < 0.05 (+100 points" in lines
+    assert "| BC-NOSTRA + AdaMLI above Diffusion Policy under all with McNemar p < 0.05 (+30 points, p = 0.25) | not shown |" in lines
+    assert "| BC-NOSTRA + MLI above Diffusion Policy under rgbd with McNemar p < 0.05 (+100 points" in lines
+    _write(tmp_path, 0, "best", "none", "diffusion", [True] * 5 + [False] * 5)  # under the bar: not testable
+    df = load_records(tmp_path)
+    lines = "\n".join(verdicts(success_table(df), paired_table(df), "best"))
+    assert "| Diffusion Policy clean >= 85% (50%) | no |" in lines
+    assert "above Diffusion Policy under rgb with McNemar p < 0.05 (+100 points, p = 0.002) | not testable (shown" in lines
+    assert "| BC-NOSTRA + AdaMLI above BC-LSTM under rgb with McNemar p < 0.05 (+100 points, p = 0.002) | shown |" in lines

@@ -36,7 +36,7 @@ NOISE_ORDER = TABLE1_NOISES + TABLE2_NOISES + DIAGNOSTIC_NOISES + CONTROL_NOISES
 ROWS = ["lstm", "diffusion", "rssm", "rssm_li", "nostra", "nostra_mli", "nostra_adamli"]
 # (a, b, noises): a - b, paired on the same initial states
 PAIRS = [("nostra_mli", "nostra", TABLE1_NOISES[1:]), ("nostra_mli", "lstm", TABLE1_NOISES),
-         ("nostra_mli", "diffusion", TABLE1_NOISES),
+         ("nostra_mli", "diffusion", TABLE1_NOISES + TABLE2_NOISES),
          ("nostra_mli", "rssm_li", TABLE1_NOISES[1:] + TABLE2_NOISES + ["wrist_mask", "agentview_mask"]),
          ("nostra_adamli", "nostra_mli", TABLE1_NOISES[1:] + TABLE2_NOISES + DIAGNOSTIC_NOISES)] + [
     ("nostra_adamli", b, TABLE2_NOISES + DIAGNOSTIC_NOISES) for b in ("nostra", "lstm", "diffusion", "rssm")]
@@ -309,6 +309,11 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
                 lambda xs: max(xs) <= BLIND_MAX)]
     # (noise, its claims): Table 1's unless only Table 2 ran (OBS=rgbd), then Table 2's once any of its cells exist
     ran = set(s.index.get_level_values("noise"))
+    has_dp = not np.isnan(rate("diffusion", "none"))
+    dp = [(f"Diffusion Policy clean >= {CLEAN_MIN:.0%} ({percent(rate('diffusion', 'none'))})",  # its own bars: a
+           rate("diffusion", "none") >= CLEAN_MIN, [rate("diffusion", "none")]),  # baseline that did not learn
+          (f"Diffusion Policy blind <= {BLIND_MAX:.0%} ({percent(rate('diffusion', 'blind'))})",  # tests nothing
+           rate("diffusion", "blind") <= BLIND_MAX, [rate("diffusion", "blind")])]
     claims = []
     if not ran & set(TABLE2_NOISES) or ran & set(TABLE1_NOISES[1:]):
         claims = [("mask", [within("nostra_mli", "mask"), above("nostra_mli", "mask"),
@@ -316,17 +321,17 @@ def verdicts(success: pd.DataFrame, pairs: pd.DataFrame, checkpoint: str, seed: 
                              f"vs {percent(rate('nostra_mli', 'mask'))})",
                              abs(rate("nostra_adamli", "mask") - rate("nostra_mli", "mask")) <= WITHIN,
                              [rate("nostra_adamli", "mask"), rate("nostra_mli", "mask")])], [])]
-        if not np.isnan(rate("diffusion", "none")):  # its own bars: a baseline that did not learn tests nothing
-            dp = [(f"Diffusion Policy clean >= {CLEAN_MIN:.0%} ({percent(rate('diffusion', 'none'))})",
-                   rate("diffusion", "none") >= CLEAN_MIN, [rate("diffusion", "none")]),
-                  (f"Diffusion Policy blind <= {BLIND_MAX:.0%} ({percent(rate('diffusion', 'blind'))})",
-                   rate("diffusion", "blind") <= BLIND_MAX, [rate("diffusion", "blind")])]
+        if has_dp:
             claims.append(("mask", [above("nostra_mli", "mask", "diffusion")], dp))
     if ran & set(TABLE2_NOISES):
         claims += [(n, [within("nostra_adamli", n), above("nostra_adamli", n)], []) for n in TABLE2_NOISES]
+        if has_dp:
+            claims += [(n, [above("nostra_adamli", n, "diffusion"), above("nostra_mli", n, "diffusion")], dp)
+                       for n in TABLE2_NOISES]
     measured = lambda xs: not any(np.isnan(x) for x in xs)  # noqa: E731
     holds = lambda row: row[1] and measured(row[2])  # noqa: E731
-    pre = base + [hurts(n) for n in dict.fromkeys(n for n, _, _ in claims)] + [r for _, _, extra in claims for r in extra]
+    extras = {r[0]: r for _, _, extra in claims for r in extra}  # each bar once, however many claims it gates
+    pre = base + [hurts(n) for n in dict.fromkeys(n for n, _, _ in claims)] + list(extras.values())
     lines = ["| Precondition | holds |", "|---|---|"] + [
         f"| {t} | {('yes' if ok else 'no') if measured(xs) else 'not measured'} |" for t, ok, xs in pre]
     lines += ["", "| Claim | verdict |", "|---|---|"]
