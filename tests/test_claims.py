@@ -183,6 +183,13 @@ def test_adamli_detection_per_modality_and_gripper_phase(tmp_path):
     assert "| BC-NOSTRA + AdaMLI | 50 [" in report and "| proprio_zero |" in report.split("### Paired")[1]
     assert (tmp_path / "out" / "adamli_detection.csv").is_file()
 
+    # a model added later on a disk without AdaMLI's records: the report keeps its own per-modality table
+    kept = (tmp_path / "out" / "adamli_detection.csv").read_text()
+    _write(tmp_path / "later", 0, "best", "proprio_zero", "lstm", [False, True])
+    report = write_report(tmp_path / "later", tmp_path / "out", earlier=[tmp_path / "out" / "episodes.csv"])
+    assert "| proprio_zero | robot0_gripper_qpos | yes | 50% | 100% | 0% | 50% | 0% | 100% | 8 / 2 |" in report
+    assert "| BC-LSTM | 50 [" in report and (tmp_path / "out" / "adamli_detection.csv").read_text() == kept
+
 
 def test_pooling_seed_reports_equals_pooling_their_records(tmp_path):
     """Seeds reported apart (records on different disks) pool to the numbers the records give together."""

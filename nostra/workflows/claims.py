@@ -391,9 +391,12 @@ def write_report(evaluations: Path, out: Path, header: list[str] = (), earlier: 
     success.to_csv(out / "table1.csv", index=False)
     pairs.to_csv(out / "paired.csv", index=False)
     fir.to_csv(out / "false_imagination.csv", index=False)
-    det = adamli_detection(evaluations, seeds)
+    det, kept = adamli_detection(evaluations, seeds), out / "adamli_detection.csv"
     if len(det):
-        det.to_csv(out / "adamli_detection.csv", index=False)
+        det.to_csv(kept, index=False)
+    elif kept.exists():  # no AdaMLI records on this disk (a model added later): the report's own table stays
+        det = pd.read_csv(kept, dtype={"seed": str})
+        det = det if seeds is None else det[det.seed.isin([*map(str, seeds), POOLED])]
     seeds = sorted(set(success.seed) - {POOLED}, key=str)
     seeds = seeds + [POOLED] if len(seeds) > 1 else seeds  # one training seed: pooled is the same table
     ran = set(success.noise)
