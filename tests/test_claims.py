@@ -362,7 +362,7 @@ def test_table2_diffusion_rows_are_paired_and_gated_by_its_bars(tmp_path):
         if noise != "blind":
             _write(tmp_path, 0, "best", noise, "nostra", nostra)
             _write(tmp_path, 0, "best", noise, "nostra_adamli", [True] * 10 if noise != "all" else [True] * 3 + [False] * 7)
-        if noise not in ("none",):
+        if noise != "none":
             _write(tmp_path, 0, "best", noise, "nostra_mli", [noise != "blind"] * 10)
     df = load_records(tmp_path)
     pairs = paired_table(df)
