@@ -65,10 +65,57 @@ def test_cpu_report_best_is_the_runs_own_pick_at_its_horizon(tmp_path):
     (run / "rollouts.json").write_text(json.dumps([
         {"step": 2000, "episodes": 10, "horizon": 200, "score": 0.9, "seconds": 60},
         {"step": 3000, "episodes": 10, "horizon": 400, "score": 0.7, "seconds": 60}]))
-    lines, curves = cpu_report.training_rows(tmp_path / "runs", "Stack", [0], ["nostra"])
+    lines, curves, _ = cpu_report.training_rows(tmp_path / "runs", "Stack", [0], ["nostra"])
     assert lines[-1].endswith("| 2 | 3000 (70%, 10) |")
     cpu_report.curve_figure(curves, tmp_path / "curve.png")
     assert (tmp_path / "curve.png").stat().st_size > 0
+
+
+def test_cpu_report_keeps_rows_whose_runs_are_gone(tmp_path):
+    """The report rewritten on a disk that has only a later model's run (another VM, MODELS=diffusion):
+    the earlier BC-LSTM cells and training row stay, marked, and the new model's are added; a cell
+    evaluated again on this disk replaces the kept one; another task's folder is refused."""
+    runs, out = tmp_path / "runs", tmp_path / "report"
+    _success(runs / "evaluate/liftd1/s2/best", [("none", "lstm", 9), ("blind", "lstm", 1)])
+    run = runs / "train/pretrain-lstm-LiftD1-s2"
+    run.mkdir(parents=True)
+    (run / "run.json").write_text(json.dumps({"steps": 4929, "wall_seconds": 1896, "train_episodes": 180,
+                                              "val_episodes": 20}))
+    (run / "rollouts.json").write_text(json.dumps([{"step": 4000, "episodes": 10, "score": 0.9, "seconds": 200}]))
+    cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--seeds", "2", "--models", "lstm", "--out", str(out)])
+    lstm_row = "| 2 | BC-LSTM | 180 + 20 | 4929 | 31.6 | 3.3 (11%) | 1 | 4000 (90%, 10) |"
+    assert lstm_row in (out / "index.md").read_text() and "†" not in (out / "index.md").read_text()
+
+    import shutil
+
+    shutil.rmtree(runs)  # a fresh machine: only the Diffusion Policy run
+    _success(runs / "evaluate/liftd1/s2/best", [("none", "diffusion", 8), ("blind", "lstm", 3)])
+    run = runs / "train/pretrain-diffusion-LiftD1-s2"
+    run.mkdir(parents=True)
+    (run / "run.json").write_text(json.dumps({"steps": 16349, "wall_seconds": 5400}))
+    cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--seeds", "2", "--models", "diffusion",
+                     "--out", str(out)])
+    text = (out / "index.md").read_text()
+    assert "| 2 | BC-LSTM | 90 [10, 90] † | – | 30 [10, 90] |" in text  # blind re-evaluated here: not kept
+    assert "| 2 | Diffusion Policy | 80 [10, 90] | – | – |" in text
+    assert lstm_row[:-2] + " † |" in text and "| 2 | Diffusion Policy | – | 16349 | 90.0 |" in text
+    assert "kept from this folder's earlier report" in text
+    cells = pd.read_csv(out / "success.csv")
+    assert len(cells) == 3 and "kept" not in cells.columns
+
+    # a report written before training.json: the kept training rows come from its index.md
+    (out / "training.json").unlink()
+    shutil.rmtree(runs)
+    cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--seeds", "2", "--models", "lstm", "--out", str(out)])
+    text = (out / "index.md").read_text()
+    assert lstm_row[:-2] + " † |" in text and "| 2 | Diffusion Policy | – | 16349 |" in text and "not trained" not in text
+
+    try:
+        cpu_report.main(["--task", "stack", "--runs", str(runs), "--out", str(out)])
+    except ValueError as e:
+        assert "success.csv" in str(e) and "'LiftD1'" in str(e)
+    else:
+        raise AssertionError("another task's report folder was accepted")
 
 
 def _records(folder, successes):

@@ -1,7 +1,8 @@
 """The CPU profile's report (`make cpu`): success with the best and the last checkpoint, clean and
 blind, per training seed; the cost of training and of its rollouts; the rollout learning curves.
-Reads what the runs wrote (run.json, rollouts.json, success.csv) and writes index.md, success.csv
-and learning_curves.png into the report folder. `recipe` writes the table of `make cpu-recipe`:
+Reads what the runs wrote (run.json, rollouts.json, success.csv) and writes index.md, success.csv,
+training.json and learning_curves.png into the report folder; a row of the folder's earlier report whose run
+or evaluation is not on this disk (another VM, another MODELS) is kept and marked, not dropped. `recipe` writes the table of `make cpu-recipe`:
 which switch of the recipe moved success, by how much, with intervals.
 
     python -m nostra.workflows.cpu_report --task liftd1 --runs data/runs/cpu --seeds 0 --models lstm nostra --out reports/cpu/liftd1
@@ -49,15 +50,40 @@ def success_rows(runs: Path, task: str, seeds: list[int]) -> pd.DataFrame:
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
+KEPT = "†"
+KEY = ["seed", "variant", "noise", "checkpoint"]
+
+
+def with_kept_rows(df: pd.DataFrame, out: Path, task: str) -> pd.DataFrame:
+    """This disk's cells, then the cells of the report already in `out` that this disk has no evaluation
+    for (column `kept`), so a report rewritten on another machine or for another model loses nothing."""
+    df = df.assign(kept=False)
+    old = out / "success.csv"
+    if not old.is_file():
+        return df
+    prev = pd.read_csv(old)
+    missing = [c for c in KEY + ["task", "success_rate", "ci_low", "ci_high", "episodes"] if c not in prev.columns]
+    if missing:
+        raise ValueError(f"{old}: no column {missing[0]!r}; remove the file or give another --out")
+    other = sorted(set(prev.task) - {task})
+    if other:
+        raise ValueError(f"{old} holds cells of task {other[0]!r}, not {task!r}: give this task its own --out")
+    if len(df):
+        prev = prev[~prev.set_index(KEY).index.isin(df.set_index(KEY).index)]
+    prev = prev.drop(columns="kept", errors="ignore").assign(kept=True)
+    return pd.concat([df, prev], ignore_index=True).sort_values(["seed"], kind="stable", ignore_index=True)
+
+
 def success_table(df: pd.DataFrame) -> list[str]:
-    """One row per (seed, variant): clean with best and last, blind with best."""
+    """One row per (seed, variant): clean with best and last, blind with best; kept cells marked."""
     cols = [("none", "best", "clean, best"), ("none", "last", "clean, last"), ("blind", "best", "blind, best")]
     lines = ["| Seed | Method | " + " | ".join(c[2] for c in cols) + " |", "|---" * (len(cols) + 2) + "|"]
     for (seed, variant), g in df.groupby(["seed", "variant"], sort=False):
         cells = []
         for noise, ck, _ in cols:
             r = g[(g.noise == noise) & (g.checkpoint == ck)]
-            cells.append(cell(next(r.itertuples())) if len(r) else "–")
+            row = next(r.itertuples()) if len(r) else None
+            cells.append("–" if row is None else cell(row) + (f" {KEPT}" if getattr(row, "kept", False) else ""))
         label = LABELS.get(variant, variant)
         if variant == "nostra_mli":
             label = "BC-NOSTRA, cameras imagined (MLI)"
@@ -65,29 +91,59 @@ def success_table(df: pd.DataFrame) -> list[str]:
     return lines
 
 
-def training_rows(runs: Path, task_name: str, seeds: list[int], models: list[str]) -> tuple[list[str], dict]:
+def training_rows(runs: Path, task_name: str, seeds: list[int], models: list[str],
+                  kept: dict | None = None) -> tuple[list[str], dict, dict]:
+    """The training table, the checks to draw, and what training.json keeps: one row per (seed, model)
+    trained on this disk, then the kept rows of the folder's earlier report that this disk has no run for."""
     lines = ["| Seed | Model | demos (train + held out) | steps | wall (min) | rollouts (min, share) | checks "
              "| best step (success, episodes) |", "|---|---|---|---|---|---|---|---|"]
-    curves = {}
+    curves, rows, kept = {}, {}, dict(kept or {})
     for seed in seeds:
         for m in models:
             run = runs / "train" / f"pretrain-{m}-{task_name}-s{seed}"
-            if not (run / "run.json").is_file():
+            if (run / "run.json").is_file():
+                rows[f"{seed}/{m}"] = trained_row(run, seed, m)
+                kept.pop(f"{seed}/{m}", None)
+            elif f"{seed}/{m}" not in kept:
                 lines.append(f"| {seed} | {LABELS.get(m, m)} | – | – | – | – | – | not trained |")
-                continue
-            info = json.loads((run / "run.json").read_text())
-            checks = json.loads((run / "rollouts.json").read_text()) if (run / "rollouts.json").is_file() else []
-            curves[(seed, m)] = checks
-            wall = info.get("wall_seconds") or float("nan")
-            spent = sum(c.get("seconds", 0) for c in checks)
-            # the run's own pick (run.json): among the checks at its last horizon, as best.ckpt was chosen
-            best = (info.get("rollouts") or {}).get("best") or max(checks, key=lambda c: (c["score"], c["step"]),
-                                                                   default=None)
-            best_s = f"{best['step']} ({100 * best['score']:.0f}%, {best['episodes']})" if best else "–"
-            demos = (f"{info['train_episodes']} + {info['val_episodes']}" if "train_episodes" in info else "–")
-            lines.append(f"| {seed} | {LABELS.get(m, m)} | {demos} | {info['steps']} | {wall / 60:.1f} | "
-                         f"{spent / 60:.1f} ({100 * spent / wall:.0f}%) | {len(checks)} | {best_s} |")
-    return lines, curves
+    for key, r in sorted({**rows, **kept}.items(), key=lambda kv: (int(kv[0].split("/")[0]), kv[0])):
+        lines.append(r["row"][:-2] + f" {KEPT} |" if key in kept else r["row"])
+        if r.get("checks"):
+            curves[tuple(key.split("/"))] = r["checks"]
+    return lines, curves, {**rows, **kept}
+
+
+def trained_row(run: Path, seed: int, m: str) -> dict:
+    info = json.loads((run / "run.json").read_text())
+    checks = json.loads((run / "rollouts.json").read_text()) if (run / "rollouts.json").is_file() else []
+    wall = info.get("wall_seconds") or float("nan")
+    spent = sum(c.get("seconds", 0) for c in checks)
+    # the run's own pick (run.json): among the checks at its last horizon, as best.ckpt was chosen
+    best = (info.get("rollouts") or {}).get("best") or max(checks, key=lambda c: (c["score"], c["step"]),
+                                                           default=None)
+    best_s = f"{best['step']} ({100 * best['score']:.0f}%, {best['episodes']})" if best else "–"
+    demos = (f"{info['train_episodes']} + {info['val_episodes']}" if "train_episodes" in info else "–")
+    return {"row": f"| {seed} | {LABELS.get(m, m)} | {demos} | {info['steps']} | {wall / 60:.1f} | "
+                   f"{spent / 60:.1f} ({100 * spent / wall:.0f}%) | {len(checks)} | {best_s} |", "checks": checks}
+
+
+def kept_training(out: Path) -> dict:
+    """The training rows the folder's earlier report wrote: training.json, or for a report written before
+    training.json existed, the rows of its index.md's training table (no curves then)."""
+    if (out / "training.json").is_file():
+        return json.loads((out / "training.json").read_text())
+    if not (out / "index.md").is_file():
+        return {}
+    text = (out / "index.md").read_text()
+    table = text.split("## Training", 1)[1] if "## Training" in text else ""
+    names = {label: m for m, label in LABELS.items()}
+    rows = {}
+    for line in table.splitlines():
+        line = line.replace(f" {KEPT}", "").strip()
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if len(cells) == 8 and cells[0].isdigit() and cells[1] in names and cells[-1] != "not trained":
+            rows[f"{cells[0]}/{names[cells[1]]}"] = {"row": line, "checks": []}
+    return rows
 
 
 def curve_figure(curves: dict, path: Path) -> None:
@@ -97,7 +153,7 @@ def curve_figure(curves: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    for (seed, m), checks in curves.items():
+    for (seed, m), checks in sorted(curves.items(), key=lambda kv: (int(kv[0][0]), kv[0][1])):
         horizons = sorted({c.get("horizon") for c in checks}, key=str)
         for h in horizons:  # a run resumed at another horizon: one line per horizon
             part = [c for c in checks if c.get("horizon") == h]
@@ -107,7 +163,8 @@ def curve_figure(curves: dict, path: Path) -> None:
     ax.set_ylabel("clean success (%)")
     ax.set_ylim(-5, 105)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    if ax.lines:
+        ax.legend(fontsize=8)
     ax.set_title("Rollouts during training")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -212,10 +269,11 @@ def main(argv: list[str] | None = None) -> None:
     runs, out = Path(args.runs), Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     folder = args.task + (f"-h{args.horizon}" if args.horizon else "")  # named as the command named the task
-    df = success_rows(runs, folder, args.seeds)
+    df = with_kept_rows(success_rows(runs, folder, args.seeds), out, task)
+    train_lines, curves, training = training_rows(runs, task, args.seeds, args.models, kept_training(out))
     if len(df):
-        df.to_csv(out / "success.csv", index=False)
-    train_lines, curves = training_rows(runs, task, args.seeds, args.models)
+        df.drop(columns="kept").to_csv(out / "success.csv", index=False)
+    (out / "training.json").write_text(json.dumps(training, indent=1))
     curve_figure(curves, out / "learning_curves.png")
     episodes = int(df["episodes"].max()) if len(df) else 0
     commands = command_header(out, args.command, args.wall_seconds)
@@ -223,14 +281,17 @@ def main(argv: list[str] | None = None) -> None:
         commands.append("- Wall time of the command: see the training table")
     copies = sorted(str(p.parent.relative_to(runs / "evaluate" / folder))
                     for p in (runs / "evaluate" / folder).glob("s*/last/*/SAME_AS_BEST.txt"))
+    kept = bool(len(df) and df["kept"].any()) or any(line.endswith(f"{KEPT} |") for line in train_lines)
     text = [f"# CPU profile: {task}", "",
-            *commands, f"- Machine: {machine()}",
+            *commands, f"- Machine: {machine()}" + (f" (this disk's runs; rows marked {KEPT} ran where their "
+                                                   "command did)" if kept else ""),
             f"- Training seeds: {', '.join(map(str, args.seeds))}; demos: {args.demos}; "
             f"rollouts: seeds 1000-{1000 + max(episodes, 1) - 1} (never used by demos), the same for every variant",
             *([f"- Rollout horizon: {args.horizon} steps, set for these cells (`HORIZON`; evaluations in "
                f"`{runs / 'evaluate' / folder}`); the best checkpoint is the one the training's own checks picked"]
               if args.horizon else []),
-            *([f"- Last = best checkpoint for every model (the final check was the best): "
+            *([f"- Last = best checkpoint for every model{' run on this disk' if kept else ''} (the final check "
+               "was the best): "
                f"{', '.join(f'`{c}`' for c in copies)} copies the best cell, not a second run"] if copies else []),
             "", "## Success", "",
             f"Success rate in % over {episodes} episodes per cell, 95% Wilson interval in brackets. "
@@ -238,7 +299,10 @@ def main(argv: list[str] | None = None) -> None:
             "diffusion_policy report); *last*: the end of training. *blind*: no camera at any step (black frames; "
             "for the MLI row the camera latents are imagined from step 1).", "",
             *(success_table(df) if len(df) else ["(no evaluation found)"]), "",
-            "## Training", "", *train_lines, "", "![learning curves](learning_curves.png)", ""]
+            "## Training", "", *train_lines, "", "![learning curves](learning_curves.png)", "",
+            *([f"{KEPT} kept from this folder's earlier report: the run or evaluation is not on this disk (another "
+               "machine, or a command with other seeds or models; commands.jsonl lists the commands that made "
+               "them). Remove the folder to start afresh.", ""] if kept else [])]
     (out / "index.md").write_text("\n".join(text))
     print("\n".join(text))
 
