@@ -1,9 +1,10 @@
 """The CPU profile's report (`make cpu`): success with the best and the last checkpoint, clean and
 blind, per training seed; the cost of training and of its rollouts; the rollout learning curves.
 Reads what the runs wrote (run.json, rollouts.json, success.csv) and writes index.md, success.csv,
-training.json and learning_curves.png into the report folder; a row of the folder's earlier report whose run
-or evaluation is not on this disk (another VM, another MODELS) is kept and marked, not dropped. `recipe` writes the table of `make cpu-recipe`:
-which switch of the recipe moved success, by how much, with intervals.
+training.json and learning_curves.png into the report folder; a row of the folder's earlier report
+whose run or evaluation is not on this disk (another VM, another MODELS) is kept and marked, not
+dropped. `recipe` writes the table of `make cpu-recipe`: which switch of the recipe moved success, by
+how much, with intervals.
 
     python -m nostra.workflows.cpu_report --task liftd1 --runs data/runs/cpu --seeds 0 --models lstm nostra --out reports/cpu/liftd1
     python -m nostra.workflows.cpu_report recipe --evaluations data/runs/cpu/evaluate/liftd1/recipe --task liftd1 --out recipe.md
