@@ -119,3 +119,20 @@ def test_dp_zarr_float_images_and_key_map(tmp_path):
     assert s.array(coll, "agentview_image").dtype == np.uint8
     np.testing.assert_array_equal(s.episode(coll, 1)["agent_pos"], eps[1].obs["robot0_eef_pos"][:, :2])
     assert s.episodes(coll)["task"].tolist() == ["PushT", "PushT"]
+
+
+def test_keys_select_and_name_what_is_missing(tmp_path):
+    """``keys`` keeps only the asked keys (and actions); a key no array or feature maps to is named,
+    with the keys that do map, and the store is left without the collection."""
+    from nostra.data.formats import dp_zarr
+    eps = F.make_episodes(2, [5, 6], image_size=8, keys=(F.RGB_KEYS[0], *F.LOWDIM))
+    zpath = dp_zarr.write(tmp_path / "dp.zarr", eps, zarr_format=2)
+    lpath = F.write_lerobot(tmp_path / "lr", n=2, image_size=8, video=False)
+    s = Store(tmp_path / "store.zarr")
+    lowdim = next(iter(F.LOWDIM))
+    coll = s.ingest(zpath, keys=[lowdim], progress=False)
+    assert s.keys(coll) == sorted(["actions", lowdim])
+    for path, what in [(zpath, "array"), (lpath, "feature")]:
+        with pytest.raises(DataError, match=rf"no {what} maps to \['gripper_cam'\]; mapped keys: \[.*'actions'"):
+            s.ingest(path, name=f"x-{what}", keys=["gripper_cam"], progress=False)
+    assert s.collections() == [coll]

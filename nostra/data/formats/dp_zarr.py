@@ -19,6 +19,7 @@ from zarr.storage import ZipStore
 
 from nostra.data.episode import Episode, normalize_meta
 from nostra.data.errors import DataError
+from nostra.data.formats.keys import select_keys
 from nostra.modality import FRONT_IMAGE, kind_of_key
 
 FMT = "dp_zarr"
@@ -78,12 +79,7 @@ class DPZarrSource:
             out = {DEFAULT_MAP.get(n, n): (n, None) for n in names}
         if "actions" not in out:
             raise DataError(self.path, f"no action array (map one to 'actions'); arrays: {names}", key="data/action")
-        if keys is not None:
-            missing = [k for k in keys if k not in out]
-            if missing:
-                raise DataError(self.path, f"no array maps to {missing}; mapped keys: {sorted(out)}", key=missing[0])
-            out = {k: v for k, v in out.items() if k in keys or k == "actions"}
-        return out
+        return select_keys(out, keys, self.path, "array")
 
     @property
     def files(self) -> list[Path]:

@@ -36,6 +36,7 @@ from PIL import Image
 
 from nostra.data.episode import Episode, normalize_meta
 from nostra.data.errors import DataError
+from nostra.data.formats.keys import select_keys
 from nostra.modality import FRONT_IMAGE, kind_of_key
 
 FMT = "lerobot"
@@ -116,12 +117,7 @@ class LeRobotSource:
                 out |= split_by_names(f, s) or ({k: (f, None)} if (k := default_key(f, s)) else {})
         if "actions" not in out:
             raise DataError(self.root / "meta/info.json", "no action feature (map one to 'actions')", key="actions")
-        if keys is not None:
-            missing = [k for k in keys if k not in out]
-            if missing:
-                raise DataError(self.root, f"no feature maps to {missing}; mapped keys: {sorted(out)}", key=missing[0])
-            out = {k: v for k, v in out.items() if k in keys or k == "actions"}
-        return out
+        return select_keys(out, keys, self.root, "feature")
 
     def _episodes(self) -> list[dict]:
         if self.v2:
