@@ -91,7 +91,13 @@ class DiffusionNetConfig(EncoderConfig):
 
 @dataclass
 class OptimConfig:
-    lr: float = 1e-4                 # Adam, constant (paper Table 7)
+    """Adam with the paper's constant learning rate (Table 7). ``lr_scheduler`` (a diffusers schedule
+    name: cosine, linear, ...) decays it over ``total_steps`` instead, after ``warmup_steps``: not the
+    paper's recipe, for a short CPU budget whose last checkpoint should not land on a swing."""
+    lr: float = 1e-4
+    lr_scheduler: str = "constant"
+    warmup_steps: int = 0
+    total_steps: int | None = None   # the schedule's length; None: the trainer's (max_steps)
 
 
 @dataclass
@@ -102,7 +108,6 @@ class DiffusionOptimConfig(OptimConfig):
     weight_decay: float = 1e-6
     lr_scheduler: str = "cosine"
     warmup_steps: int = 500
-    total_steps: int | None = None   # the cosine's length; None: the trainer's (max_steps)
     ema_power: float = 0.75
     ema_max_decay: float = 0.9999
 

@@ -16,6 +16,8 @@
 #     cells in evaluate/stack-h400, report in reports/cpu-d1000/stack-h400 (apart from the profile horizon's)
 #   TASK=liftd1 SEEDS=4 MODELS=rssm STEPS=3268 make cpu   # a step budget too (train.max_steps): match a run
 #     trained on another machine, whose minutes bought a different number of steps
+#   LR=cosine TASK=stack DEMOS=1000 MODELS=nostra STEPS=18000 MINUTES=200 make cpu   # the rate decayed to 0 over
+#     STEPS (not the paper's constant rate): runs and reports of its own (data/runs/cpu-d1000-cosine)
 #   MODELS=diffusion DP_MINUTES=90 DP_STEPS=14000 DP_CHECK_EVERY=2000 make cpu   # Diffusion Policy's own budget:
 #     its cosine spans DP_STEPS (what DP_MINUTES buys here), an in-training check every DP_CHECK_EVERY steps
 set -euo pipefail
@@ -52,6 +54,7 @@ for seed in $SEEDS; do
       esac
     fi
     minutes=$MINUTES extra=""
+    [ $LR = constant ] || [ $model = diffusion ] || extra="model.optim.lr_scheduler=$LR"
     if [ $model = diffusion ]; then
       minutes=${DP_MINUTES:-$MINUTES}
       extra="${DP_STEPS:+profile.dp_total_steps=$DP_STEPS}${DP_CHECK_EVERY:+ train.rollout.every=$DP_CHECK_EVERY}"
@@ -113,6 +116,6 @@ if [ $ran = 0 ] && [ -f "$OUT/index.md" ]; then
 fi
 python -m nostra.workflows.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
   --demos "$DEMO_SEEDS" ${HORIZON:+--horizon $HORIZON} \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${STEPS:+ STEPS=$STEPS}${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS} make cpu" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${STEPS:+ STEPS=$STEPS}${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS}$([ $LR = constant ] || echo " LR=$LR") make cpu" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/index.md"

@@ -6,9 +6,12 @@
 #            of the other n - 200 (episode seeds from 10000: apart from the first demos' and the evaluation's,
 #            1000...) and gives the study its own runs and reports (data/runs/cpu-d<n>, reports/cpu-d<n>)
 #   STEPS=<n> (optional) a whole number of training steps, checked here for the scripts that take one
+#   LR=constant (the paper's Adam at 1e-4; default) | cosine: BC-LSTM's, BC-RSSM's and BC-NOSTRA's rate decays to
+#            0 over STEPS (needed) by a half cosine, not the paper's recipe; the study gets its own runs and reports
+#            (data/runs/cpu[...]-cosine, reports/cpu[...]-cosine; Diffusion Policy keeps its own schedule)
 #   HORIZON=<n> (optional) rollout steps instead of the profile's eval_horizon: the cells (and the reports)
 #            are named <task>-h<n>, so that they never mix with, or are kept as, the profile horizon's
-# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>]), REPORTS (reports/cpu[...]) and EVAL_NAME;
+# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>][-cosine]), REPORTS (reports/cpu[...]) and EVAL_NAME;
 # defines collection, demo_collections, same_as_best, records and link_configured.
 OBS=${OBS:-rgb}
 CAPACITY=${CAPACITY:-configured}
@@ -38,6 +41,13 @@ with initialize_config_dir(CONF_DIR, version_base='1.3'):
     { echo "$0: DEMOS=$DEMOS must be a whole number above the profile's demos_per_task ($BASE_DEMOS)" >&2; exit 2; }
   SUFFIX=$SUFFIX-d$DEMOS
 fi
+LR=${LR:-constant}
+case $LR in
+  constant) ;;
+  cosine) [ -n "${STEPS:-}" ] || { echo "$0: LR=cosine decays over STEPS: give STEPS=<n> too" >&2; exit 2; }
+          SUFFIX=$SUFFIX-cosine ;;
+  *) echo "$0: unknown LR=$LR; valid: constant, cosine" >&2; exit 2 ;;
+esac
 RUNS=data/runs/cpu$SUFFIX
 REPORTS=reports/cpu$SUFFIX
 

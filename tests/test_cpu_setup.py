@@ -78,3 +78,28 @@ def test_matched_capacity_links_the_configured_run_or_names_the_missing_one(tmp_
     r = setup({"CAPACITY": "matched", "OBS": "rgbd"}, body, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert r.stdout.splitlines()[-1] == str(configured)  # data/runs/cpu-rgbd-matched/train/... points there
+
+
+def test_a_decaying_rate_needs_a_step_budget_and_gets_a_study_of_its_own():
+    r = setup({"LR": "cosine", "STEPS": "18000", "DEMOS": "1000"}, 'echo "$RUNS $REPORTS"')
+    assert r.returncode == 0, r.stderr
+    assert r.stdout == "data/runs/cpu-d1000-cosine reports/cpu-d1000-cosine\n"
+    assert setup({}, 'echo "$LR $RUNS"').stdout == "constant data/runs/cpu\n"  # the paper's recipe
+    r = setup({"LR": "cosine"}, "echo reached")
+    assert r.returncode == 2 and "reached" not in r.stdout and "STEPS=<n>" in r.stderr
+    r = setup({"LR": "cosin", "STEPS": "10"}, "echo reached")
+    assert r.returncode == 2 and "LR=cosin" in r.stderr and "valid: constant, cosine" in r.stderr
+
+
+def test_make_cpu_trains_the_recurrent_policies_on_the_decaying_rate_and_diffusion_on_its_own(tmp_path):
+    from script_stubs import run_stubbed
+
+    (tmp_path / "data/raw").mkdir(parents=True)
+    (tmp_path / "data/raw/liftd1_cpu.hdf5").touch()
+    (tmp_path / "data/store.zarr/liftd1_cpu").mkdir(parents=True)
+    r, calls = run_stubbed(tmp_path, "cpu.sh", {"LR": "cosine", "STEPS": "900", "MODELS": "nostra diffusion"})
+    trains = [c for c in calls if c.startswith("nostra train")]
+    assert len(trains) == 2, (r.stderr, calls)
+    assert "model.optim.lr_scheduler=cosine" in trains[0].split() and "train.max_steps=900" in trains[0].split()
+    assert "paths.runs=data/runs/cpu-cosine" in trains[0].split()
+    assert "model=diffusion" in trains[1] and "lr_scheduler" not in trains[1]

@@ -223,6 +223,42 @@ def test_a_policy_module_refuses_unknown_keys_and_takes_the_dataclass_defaults()
     assert (diffusion.config.optim.warmup_steps, diffusion.config.optim.betas) == (1, [0.95, 0.999])
 
 
+def _lrs(sched, steps: int) -> list[float]:
+    lrs = []
+    for _ in range(steps):
+        lrs.append(sched.get_last_lr()[0])
+        sched.optimizer.step()
+        sched.step()
+    return lrs
+
+
+@pytest.mark.parametrize("policy", ["nostra", "rssm", "lstm"])
+def test_a_recurrent_policy_keeps_the_papers_constant_rate_unless_a_schedule_is_named(policy):
+    """Adam at a constant 1e-4 by default (paper Table 7); optim.lr_scheduler=cosine decays it to 0 at
+    total_steps and holds it there; constant with a warm-up ramps then stays; an unknown name is
+    refused with the valid ones."""
+    from nostra.policies.modules import policy_module
+
+    make = policy_module(policy)
+    opt = make(MODS, 2, net=small_net(policy)).configure_optimizers()
+    assert isinstance(opt, torch.optim.Adam) and opt.param_groups[0]["lr"] == 1e-4
+    cosine = make(MODS, 2, net=small_net(policy), optim={"lr": 1.0, "lr_scheduler": "cosine", "total_steps": 10})
+    lrs = _lrs(cosine.configure_optimizers()["lr_scheduler"]["scheduler"], 20)
+    assert lrs[0] == pytest.approx(1.0) and lrs[5] == pytest.approx(0.5) and lrs[4] > lrs[5] > lrs[6]
+    assert max(lrs[10:]) == pytest.approx(0.0, abs=1e-9)
+    warm = make(MODS, 2, net=small_net(policy), optim={"lr": 1.0, "warmup_steps": 4, "total_steps": 10})
+    assert _lrs(warm.configure_optimizers()["lr_scheduler"]["scheduler"], 12)[2:] == pytest.approx(
+        [0.5, 0.75] + [1.0] * 8)
+    with pytest.raises(ValueError, match=r"unknown optim.lr_scheduler 'cosin'; valid: linear, cosine, "):
+        make(MODS, 2, net=small_net(policy), optim={"lr_scheduler": "cosin"}).configure_optimizers()
+
+
+def test_the_schedule_composes_from_the_command_line():
+    cfg = _compose("model=nostra", "model.optim.lr_scheduler=cosine", "model.optim.total_steps=18000")
+    optim = typed(cfg.model, "model").optim
+    assert (optim.lr, optim.lr_scheduler, optim.warmup_steps, optim.total_steps) == (1e-4, "cosine", 0, 18000)
+
+
 # ---- every field of a training run is read -------------------------------------------------------
 
 def _unread(names, pattern: str, text: str) -> list[str]:

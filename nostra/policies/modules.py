@@ -10,7 +10,7 @@ from dataclasses import asdict
 
 import lightning as L
 import torch
-from diffusers.optimization import get_scheduler
+from diffusers.optimization import SchedulerType, get_scheduler
 from torch.optim.swa_utils import AveragedModel
 
 from nostra.configs import model_config
@@ -22,10 +22,13 @@ from nostra.policies.lstm import LSTMNet
 from nostra.policies.nostra import NostraNet
 from nostra.policies.rssm import RSSMNet
 
+# diffusers' learning-rate schedules, by name (piecewise_constant needs rules no config gives)
+SCHEDULES = [t.value for t in SchedulerType if t.value != "piecewise_constant"]
+
 
 class PolicyModule(L.LightningModule):
     """Lightning wrapper: teacher-forced sequence training, Adam with a constant learning rate
-    (paper Table 7), logging with the design's metric names. ``net``, ``optim`` and ``loss`` are
+    (paper Table 7; ``optim.lr_scheduler`` may decay it), logging with the design's metric names. ``net``, ``optim`` and ``loss`` are
     plain dicts, completed and checked by the policy's typed config (nostra.configs)."""
 
     net_cls: type[PolicyNet] = PolicyNet
@@ -71,7 +74,29 @@ class PolicyModule(L.LightningModule):
             self.log(name, v, batch_size=bs, sync_dist=True)
 
     def configure_optimizers(self):
-        return torch.optim.Adam(self.parameters(), lr=self.config.optim.lr)
+        return self.scheduled(torch.optim.Adam(self.parameters(), lr=self.config.optim.lr))
+
+    def scheduled(self, opt: torch.optim.Optimizer):
+        """``opt`` with the config's learning-rate schedule (a diffusers schedule stepped every batch);
+        the paper's constant rate without warm-up returns ``opt`` itself."""
+        cfg = self.config.optim
+        if cfg.lr_scheduler not in SCHEDULES:
+            raise ValueError(f"unknown optim.lr_scheduler {cfg.lr_scheduler!r}; valid: {', '.join(SCHEDULES)}")
+        name = cfg.lr_scheduler
+        if name == "constant":  # diffusers' constant ignores a warm-up
+            if not cfg.warmup_steps:
+                return opt
+            name = "constant_with_warmup"
+        total = cfg.total_steps or self.trainer.estimated_stepping_batches
+        if not math.isfinite(total):
+            raise ValueError(f"the {cfg.lr_scheduler} learning-rate schedule needs a finite length: set the "
+                             "trainer's max_steps or max_epochs, or optim.total_steps")
+        sched = get_scheduler(name, opt, num_warmup_steps=int(cfg.warmup_steps),
+                              num_training_steps=int(total))
+        # a run that outlasts `total` (a time budget on a faster machine) holds the schedule's end:
+        # diffusers' half-cycle cosine would otherwise climb back up after it
+        sched.lr_lambdas = [lambda step, f=f: f(min(step, int(total))) for f in sched.lr_lambdas]
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         write_meta(checkpoint, self.config, self.hparams["modalities"], self.hparams["action_dim"])
@@ -137,18 +162,8 @@ class DiffusionPolicy(PolicyModule):
 
     def configure_optimizers(self):
         cfg = self.config.optim
-        opt = torch.optim.AdamW(self.net.parameters(), lr=cfg.lr, betas=tuple(cfg.betas), eps=cfg.eps,
-                                weight_decay=cfg.weight_decay)
-        total = cfg.total_steps or self.trainer.estimated_stepping_batches
-        if not math.isfinite(total):
-            raise ValueError("the cosine learning-rate schedule needs a finite length: set the trainer's max_steps "
-                             "or max_epochs, or optim.total_steps")
-        sched = get_scheduler(cfg.lr_scheduler, opt, num_warmup_steps=int(cfg.warmup_steps),
-                              num_training_steps=int(total))
-        # a run that outlasts `total` (a time budget on a faster machine) holds the schedule's end:
-        # diffusers' half-cycle cosine would otherwise climb back up after it
-        sched.lr_lambdas = [lambda step, f=f: f(min(step, int(total))) for f in sched.lr_lambdas]
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        return self.scheduled(torch.optim.AdamW(self.net.parameters(), lr=cfg.lr, betas=tuple(cfg.betas),
+                                                eps=cfg.eps, weight_decay=cfg.weight_decay))
 
 
 MODULES = {"nostra": NostraPolicy, "rssm": RSSMPolicy, "lstm": LSTMPolicy, "diffusion": DiffusionPolicy}
