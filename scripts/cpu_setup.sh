@@ -68,7 +68,7 @@ PY
 
 # CAPACITY=matched: NOSTRA, the reference, is the configured run (same OBS), linked into RUNS, not retrained
 link_configured() {  # $1 = model, $2 = training seed; needs NAME (the task's name)
-  local ref=cpu${SUFFIX%-matched}/train/pretrain-$1-$NAME-s$2
+  local ref=cpu${SUFFIX/-matched/}/train/pretrain-$1-$NAME-s$2
   [ -f "data/runs/$ref/run.json" ] ||
     { echo "$0: CAPACITY=matched needs data/runs/$ref: run it first with CAPACITY=configured" >&2; exit 2; }
   mkdir -p "$RUNS/train" && ln -sfn "../../$ref" "$RUNS/train/pretrain-$1-$NAME-s$2"

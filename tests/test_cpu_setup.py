@@ -103,3 +103,13 @@ def test_make_cpu_trains_the_recurrent_policies_on_the_decaying_rate_and_diffusi
     assert "model.optim.lr_scheduler=cosine" in trains[0].split() and "train.max_steps=900" in trains[0].split()
     assert "paths.runs=data/runs/cpu-cosine" in trains[0].split()
     assert "model=diffusion" in trains[1] and "lr_scheduler" not in trains[1]
+
+
+def test_matched_capacity_with_more_demos_links_the_configured_run_of_those_demos(tmp_path):
+    body = 'NAME=LiftD1; link_configured nostra 0 && readlink -f "$RUNS/train/pretrain-nostra-LiftD1-s0"'
+    configured = tmp_path / "data/runs/cpu-d1000-cosine/train/pretrain-nostra-LiftD1-s0"
+    configured.mkdir(parents=True)
+    (configured / "run.json").write_text("{}")
+    r = setup({"CAPACITY": "matched", "DEMOS": "1000", "LR": "cosine", "STEPS": "10"}, body, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[-1] == str(configured)  # from data/runs/cpu-matched-d1000-cosine

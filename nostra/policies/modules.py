@@ -28,8 +28,9 @@ SCHEDULES = [t.value for t in SchedulerType if t.value != "piecewise_constant"]
 
 class PolicyModule(L.LightningModule):
     """Lightning wrapper: teacher-forced sequence training, Adam with a constant learning rate
-    (paper Table 7; ``optim.lr_scheduler`` may decay it), logging with the design's metric names. ``net``, ``optim`` and ``loss`` are
-    plain dicts, completed and checked by the policy's typed config (nostra.configs)."""
+    (paper Table 7; ``optim.lr_scheduler`` may decay it), logging with the design's metric names.
+    ``net``, ``optim`` and ``loss`` are plain dicts, completed and checked by the policy's typed
+    config (nostra.configs)."""
 
     net_cls: type[PolicyNet] = PolicyNet
 
