@@ -37,6 +37,16 @@ def fit(module, loader, steps: int, **trainer_kwargs):
     return trainer
 
 
+def lr_trace(sched, steps: int) -> list[float]:
+    """The learning rate a step-wise scheduler gives at each of ``steps`` optimiser steps."""
+    lrs = []
+    for _ in range(steps):
+        lrs.append(sched.get_last_lr()[0])
+        sched.optimizer.step()
+        sched.step()
+    return lrs
+
+
 @pytest.fixture
 def small():
     return small_net

@@ -9,7 +9,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from conftest import fit
+from conftest import fit, lr_trace
 from nostra.configs import DiffusionConfig
 from nostra.data.stats import fit_stats
 from nostra.models.normalizer import Normalizer
@@ -161,12 +161,7 @@ def test_cosine_schedule_holds_its_end_past_total_steps():
     """optim.total_steps sets the cosine's length (the cpu profile: what its time budget buys); a run
     that goes on past it stays at the schedule's end instead of climbing back up."""
     module = DiffusionPolicy(MODS, 2, net=TINY, optim={"lr": 1.0, "warmup_steps": 2, "total_steps": 10})
-    sched = module.configure_optimizers()["lr_scheduler"]["scheduler"]
-    lrs = []
-    for _ in range(30):
-        lrs.append(sched.get_last_lr()[0])
-        sched.optimizer.step()
-        sched.step()
+    lrs = lr_trace(module.configure_optimizers()["lr_scheduler"]["scheduler"], 30)
     assert lrs[2] == pytest.approx(1.0) and 0 < lrs[6] < 1.0
     assert lrs[10] == pytest.approx(0.0, abs=1e-9) and max(lrs[10:]) == pytest.approx(0.0, abs=1e-9)
 

@@ -16,7 +16,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from conftest import small_net
+from conftest import lr_trace, small_net
 from nostra.configs import (MODEL_CONFIGS, ConfigError, EncoderConfig, EvaluateConfig, RolloutConfig, TrainConfig,
                             VariantConfig, model_config, typed)
 from pipeline._hydra import CONF_DIR
@@ -223,15 +223,6 @@ def test_a_policy_module_refuses_unknown_keys_and_takes_the_dataclass_defaults()
     assert (diffusion.config.optim.warmup_steps, diffusion.config.optim.betas) == (1, [0.95, 0.999])
 
 
-def _lrs(sched, steps: int) -> list[float]:
-    lrs = []
-    for _ in range(steps):
-        lrs.append(sched.get_last_lr()[0])
-        sched.optimizer.step()
-        sched.step()
-    return lrs
-
-
 @pytest.mark.parametrize("policy", ["nostra", "rssm", "lstm"])
 def test_a_recurrent_policy_keeps_the_papers_constant_rate_unless_a_schedule_is_named(policy):
     """Adam at a constant 1e-4 by default (paper Table 7); optim.lr_scheduler=cosine decays it to 0 at
@@ -243,11 +234,11 @@ def test_a_recurrent_policy_keeps_the_papers_constant_rate_unless_a_schedule_is_
     opt = make(MODS, 2, net=small_net(policy)).configure_optimizers()
     assert isinstance(opt, torch.optim.Adam) and opt.param_groups[0]["lr"] == 1e-4
     cosine = make(MODS, 2, net=small_net(policy), optim={"lr": 1.0, "lr_scheduler": "cosine", "total_steps": 10})
-    lrs = _lrs(cosine.configure_optimizers()["lr_scheduler"]["scheduler"], 20)
+    lrs = lr_trace(cosine.configure_optimizers()["lr_scheduler"]["scheduler"], 20)
     assert lrs[0] == pytest.approx(1.0) and lrs[5] == pytest.approx(0.5) and lrs[4] > lrs[5] > lrs[6]
     assert max(lrs[10:]) == pytest.approx(0.0, abs=1e-9)
     warm = make(MODS, 2, net=small_net(policy), optim={"lr": 1.0, "warmup_steps": 4, "total_steps": 10})
-    assert _lrs(warm.configure_optimizers()["lr_scheduler"]["scheduler"], 12)[2:] == pytest.approx(
+    assert lr_trace(warm.configure_optimizers()["lr_scheduler"]["scheduler"], 12)[2:] == pytest.approx(
         [0.5, 0.75] + [1.0] * 8)
     with pytest.raises(ValueError, match=r"unknown optim.lr_scheduler 'cosin'; valid: linear, cosine, "):
         make(MODS, 2, net=small_net(policy), optim={"lr_scheduler": "cosin"}).configure_optimizers()
