@@ -18,6 +18,8 @@
 #     trained on another machine, whose minutes bought a different number of steps
 #   LR=cosine TASK=stack DEMOS=1000 MODELS=nostra STEPS=18000 MINUTES=200 make cpu   # the rate decayed to 0 over
 #     STEPS (not the paper's constant rate): runs and reports of its own (data/runs/cpu-d1000-cosine)
+#   HEAD=gmm TASK=stack DEMOS=1000 MODELS=nostra STEPS=16000 MINUTES=200 make cpu   # a 5-mode GMM action head
+#     (robomimic BC-RNN's, not the paper's fixed-variance Gaussian): data/runs/cpu-d1000-gmm
 #   MODELS=diffusion DP_MINUTES=90 DP_STEPS=14000 DP_CHECK_EVERY=2000 make cpu   # Diffusion Policy's own budget:
 #     its cosine spans DP_STEPS (what DP_MINUTES buys here), an in-training check every DP_CHECK_EVERY steps
 set -euo pipefail
@@ -54,7 +56,7 @@ for seed in $SEEDS; do
       esac
     fi
     minutes=$MINUTES extra=""
-    [ $LR = constant ] || [ $model = diffusion ] || extra="model.optim.lr_scheduler=$LR"
+    [ $model = diffusion ] || extra=$RECIPE
     if [ $model = diffusion ]; then
       minutes=${DP_MINUTES:-$MINUTES}
       extra="${DP_STEPS:+profile.dp_total_steps=$DP_STEPS}${DP_CHECK_EVERY:+ train.rollout.every=$DP_CHECK_EVERY}"
@@ -116,6 +118,6 @@ if [ $ran = 0 ] && [ -f "$OUT/index.md" ]; then
 fi
 python -m nostra.workflows.cpu_report --task "$TASK" --runs "$RUNS" --seeds $SEEDS --models $MODELS --out "$OUT" \
   --demos "$DEMO_SEEDS" ${HORIZON:+--horizon $HORIZON} \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${STEPS:+ STEPS=$STEPS}${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS}$([ $LR = constant ] || echo " LR=$LR") make cpu" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${STEPS:+ STEPS=$STEPS}${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS}$KNOBS make cpu" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/index.md"

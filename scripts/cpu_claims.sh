@@ -40,7 +40,7 @@ EVAL=$RUNS/evaluate/$EVAL_NAME   # <task>, or <task>-h<n> at a HORIZON of its ow
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
-TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES STEPS=$STEPS HORIZON=$HORIZON OBS=$OBS CAPACITY=$CAPACITY DEMOS=$DEMOS LR=$LR CPU_OUT=$CPU_OUT bash scripts/cpu.sh
+TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES STEPS=$STEPS HORIZON=$HORIZON OBS=$OBS CAPACITY=$CAPACITY DEMOS=$DEMOS LR=$LR HEAD=$HEAD CPU_OUT=$CPU_OUT bash scripts/cpu.sh
 
 # the variants each noise needs: under none an imagining variant is its closed-loop policy (nothing to
 # imagine), under clean_windows the closed-loop ones see clean frames (= none); blind keeps the
@@ -108,6 +108,6 @@ fi
 EARLIER=()
 [ -f "$OUT/episodes.csv" ] && EARLIER=(--episodes "$OUT/episodes.csv")
 python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" "${note[@]}" "${APART[@]}" "${EARLIER[@]}" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${STEPS:+ STEPS=$STEPS}${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS}$([ $LR = constant ] || echo " LR=$LR") NOISES=\"$NOISES\" CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
+  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${STEPS:+ STEPS=$STEPS}${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS}$KNOBS NOISES=\"$NOISES\" CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/claims.md"

@@ -9,9 +9,13 @@
 #   LR=constant (the paper's Adam at 1e-4; default) | cosine: BC-LSTM's, BC-RSSM's and BC-NOSTRA's rate decays to
 #            0 over STEPS (needed) by a half cosine, not the paper's recipe; the study gets its own runs and reports
 #            (data/runs/cpu[...]-cosine, reports/cpu[...]-cosine; Diffusion Policy keeps its own schedule)
+#   HEAD=gaussian (the paper's decoder: learned mean, fixed variance; default) | gmm: BC-LSTM's, BC-RSSM's and
+#            BC-NOSTRA's actions from a 5-mode Gaussian mixture (robomimic BC-RNN's head), not the paper's
+#            recipe; the study gets its own runs and reports (data/runs/cpu[...]-gmm, reports/cpu[...]-gmm)
 #   HORIZON=<n> (optional) rollout steps instead of the profile's eval_horizon: the cells (and the reports)
 #            are named <task>-h<n>, so that they never mix with, or are kept as, the profile horizon's
-# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>][-cosine]), REPORTS (reports/cpu[...]) and EVAL_NAME;
+# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>][-cosine][-gmm]), REPORTS (reports/cpu[...]), EVAL_NAME,
+# RECIPE (the overrides LR and HEAD give the recurrent policies) and KNOBS (LR and HEAD as the command line sets them);
 # defines collection, demo_collections, same_as_best, records and link_configured.
 OBS=${OBS:-rgb}
 CAPACITY=${CAPACITY:-configured}
@@ -48,6 +52,15 @@ case $LR in
           SUFFIX=$SUFFIX-cosine ;;
   *) echo "$0: unknown LR=$LR; valid: constant, cosine" >&2; exit 2 ;;
 esac
+HEAD=${HEAD:-gaussian}
+case $HEAD in
+  gaussian) ;;
+  gmm) SUFFIX=$SUFFIX-gmm ;;
+  *) echo "$0: unknown HEAD=$HEAD; valid: gaussian, gmm" >&2; exit 2 ;;
+esac
+RECIPE="" KNOBS=""   # where the study departs from the paper (Diffusion Policy keeps its own recipe)
+[ $LR = constant ] || { RECIPE="$RECIPE model.optim.lr_scheduler=$LR"; KNOBS="$KNOBS LR=$LR"; }
+[ $HEAD = gaussian ] || { RECIPE="$RECIPE model.net.head=$HEAD"; KNOBS="$KNOBS HEAD=$HEAD"; }
 RUNS=data/runs/cpu$SUFFIX
 REPORTS=reports/cpu$SUFFIX
 

@@ -91,18 +91,31 @@ def test_a_decaying_rate_needs_a_step_budget_and_gets_a_study_of_its_own():
     assert r.returncode == 2 and "LR=cosin" in r.stderr and "valid: constant, cosine" in r.stderr
 
 
-def test_make_cpu_trains_the_recurrent_policies_on_the_decaying_rate_and_diffusion_on_its_own(tmp_path):
+def test_a_mixture_head_gets_a_study_of_its_own_and_a_bad_head_is_refused():
+    r = setup({"HEAD": "gmm", "LR": "cosine", "STEPS": "10", "DEMOS": "1000"}, 'echo "$RUNS $REPORTS";echo "$KNOBS"')
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines() == ["data/runs/cpu-d1000-cosine-gmm reports/cpu-d1000-cosine-gmm", " LR=cosine HEAD=gmm"]
+    r = setup({}, 'echo "$HEAD $RUNS [$RECIPE] [$KNOBS]"')
+    assert r.stdout == "gaussian data/runs/cpu [] []\n"  # the paper's decoder, nothing to override
+    r = setup({"HEAD": "mdn"}, "echo reached")
+    assert r.returncode == 2 and "reached" not in r.stdout
+    assert "HEAD=mdn" in r.stderr and "valid: gaussian, gmm" in r.stderr
+
+
+def test_make_cpu_gives_the_recurrent_policies_the_rate_and_head_asked_for_and_diffusion_its_own(tmp_path):
     from script_stubs import run_stubbed
 
     (tmp_path / "data/raw").mkdir(parents=True)
     (tmp_path / "data/raw/liftd1_cpu.hdf5").touch()
     (tmp_path / "data/store.zarr/liftd1_cpu").mkdir(parents=True)
-    r, calls = run_stubbed(tmp_path, "cpu.sh", {"LR": "cosine", "STEPS": "900", "MODELS": "nostra diffusion"})
+    env = {"LR": "cosine", "HEAD": "gmm", "STEPS": "900", "MODELS": "nostra diffusion"}
+    r, calls = run_stubbed(tmp_path, "cpu.sh", env)
     trains = [c for c in calls if c.startswith("nostra train")]
     assert len(trains) == 2, (r.stderr, calls)
-    assert "model.optim.lr_scheduler=cosine" in trains[0].split() and "train.max_steps=900" in trains[0].split()
-    assert "paths.runs=data/runs/cpu-cosine" in trains[0].split()
-    assert "model=diffusion" in trains[1] and "lr_scheduler" not in trains[1]
+    nostra = trains[0].split()
+    assert "model.optim.lr_scheduler=cosine" in nostra and "model.net.head=gmm" in nostra
+    assert "train.max_steps=900" in nostra and "paths.runs=data/runs/cpu-cosine-gmm" in nostra
+    assert "model=diffusion" in trains[1] and "lr_scheduler" not in trains[1] and "head" not in trains[1]
 
 
 def test_matched_capacity_with_more_demos_links_the_configured_run_of_those_demos(tmp_path):
