@@ -61,6 +61,7 @@ esac
 RECIPE="" KNOBS=""   # where the study departs from the paper (Diffusion Policy keeps its own recipe)
 [ $LR = constant ] || { RECIPE="$RECIPE model.optim.lr_scheduler=$LR"; KNOBS="$KNOBS LR=$LR"; }
 [ $HEAD = gaussian ] || { RECIPE="$RECIPE model.net.head=$HEAD"; KNOBS="$KNOBS HEAD=$HEAD"; }
+RECIPE=${RECIPE# }
 RUNS=data/runs/cpu$SUFFIX
 REPORTS=reports/cpu$SUFFIX
 

@@ -45,7 +45,7 @@ POOLED = "pooled"
 RECORDS = "s*/*/**/records/*/*/*_seed*.npz"  # <evaluations>/s<seed>/<checkpoint>/.../<task>/<noise>/<variant>_seed<n>.npz
 
 
-def _cell_of(f: Path, evaluations: Path) -> tuple[int, str, str]:
+def cell_of(f: Path, evaluations: Path) -> tuple[int, str, str]:
     """(training seed, checkpoint, noise) of a record <evaluations>/s<seed>/<checkpoint>/**/<noise>/<file>."""
     seed_dir = next(p for p in f.parents if p.parent == evaluations)
     return int(seed_dir.name[1:]), f.relative_to(seed_dir).parts[0], f.parent.name
@@ -64,7 +64,7 @@ def load_records(evaluations: Path) -> pd.DataFrame:
         with np.load(f) as z:
             imagined = [z[k] for k in z.files if k.startswith("imagined/")]
             share = float(np.any(imagined, axis=0).mean()) if imagined else np.nan
-            key = (*_cell_of(f, evaluations), variant, int(episode))
+            key = (*cell_of(f, evaluations), variant, int(episode))
             rows[key] = (bool(z["success"]), share)  # a cell evaluated twice: the later folder wins
     index = pd.MultiIndex.from_tuples(rows, names=["seed", "checkpoint", "noise", "variant", "episode"])
     return pd.DataFrame(list(rows.values()), index=index, columns=["success", "imagined_share"]).reset_index()
@@ -171,7 +171,7 @@ def adamli_detection(evaluations: Path, seeds: list[int] | None = None) -> pd.Da
     thresholds, which compare a change with the recent changes)."""
     counts = {}
     for f in sorted(evaluations.glob("s*/*/**/records/*/*/nostra_adamli_seed*.npz")):
-        cell = _cell_of(f, evaluations)
+        cell = cell_of(f, evaluations)
         if seeds is not None and cell[0] not in seeds:
             continue
         for modality, c in episode_imagination(f).items():  # a cell evaluated twice: the later wins

@@ -1,0 +1,120 @@
+"""Gripper dithering in evaluation records: how often each episode's gripper command switches from open to
+closed, per cell of one or more studies. A decoder that averages "close" and "open" where the demos do both
+commands ~0 and swings around it; the cube is never carried. Its episodes show tens of switches, a
+successful pick one or two.
+
+    python -m nostra.workflows.gripper --runs "Gaussian head=data/runs/cpu-d1000-cosine/evaluate/stack-h400" \\
+        "GMM head=data/runs/cpu-d1000-cosine-gmm/evaluate/stack-h400" --out reports/cpu-d1000-cosine-gmm/gripper
+
+The gripper command is the last action dimension (robosuite's: -1 open, +1 closed).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from nostra.workflows.claims import RECORDS, cell_of, header_lines
+from nostra.workflows.paired_runs import labelled
+from nostra.workflows.variants import LABELS
+
+DITHER = 10  # open-to-closed switches that make an episode dithering (a success here has at most a few)
+CELL = ["study", "seed", "checkpoint", "noise", "variant"]
+
+
+def closings(action: np.ndarray) -> int:
+    """Open-to-closed switches of the gripper command (the last action dimension) over an episode."""
+    grip = np.asarray(action)[:, -1]
+    return int(((grip[1:] > 0) & (grip[:-1] <= 0)).sum())
+
+
+def load_closings(label: str, evaluations: Path) -> pd.DataFrame:
+    """One row per episode of the study: its cell, episode, success and gripper closings."""
+    rows = []
+    for f in sorted(evaluations.glob(RECORDS)):
+        variant, episode = f.stem.rsplit("_seed", 1)
+        with np.load(f) as z:
+            if "action" not in z.files:
+                raise ValueError(f"{f}: no 'action' array (keys: {', '.join(z.files)}); "
+                                 "records written by `nostra evaluate` hold one")
+            rows.append((label, *cell_of(f, evaluations), variant, int(episode), bool(z["success"]),
+                         closings(z["action"])))
+    return pd.DataFrame(rows, columns=[*CELL, "episode", "success", "closings"])
+
+
+def summary(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per cell: episodes, successes, dithering episodes, failures that dither, median closings of a success
+    and of a failure."""
+    rows = []
+    for key, g in episodes.groupby(CELL, sort=False):
+        dither, ok = g["closings"] >= DITHER, g["success"]
+        rows.append({**dict(zip(CELL, key)), "episodes": len(g), "successes": int(ok.sum()),
+                     "dithering": int(dither.sum()), "failures": int((~ok).sum()),
+                     "failures_dithering": int((dither & ~ok).sum()),
+                     "median_closings_success": g.loc[ok, "closings"].median(),
+                     "median_closings_failure": g.loc[~ok, "closings"].median()})
+    return pd.DataFrame(rows)
+
+
+def markdown(df: pd.DataFrame) -> list[str]:
+    lines = ["| Study | Seed | Checkpoint | Noise | Method | success | dithering episodes | failures that dither "
+             "| median closings, successes / failures |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in df.itertuples():
+        med = " / ".join("–" if np.isnan(m) else f"{m:g}" for m in (r.median_closings_success,
+                                                                     r.median_closings_failure))
+        lines.append(f"| {r.study} | {r.seed} | {r.checkpoint} | {r.noise} | {LABELS.get(r.variant, r.variant)} | "
+                     f"{r.successes} / {r.episodes} | {r.dithering} | {r.failures_dithering} of {r.failures} | {med} |")
+    return lines
+
+
+def figure(episodes: pd.DataFrame, path: Path) -> None:
+    """Closings per episode, successes and failures apart, one row of points per study and cell."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = list(episodes.groupby(CELL, sort=False))
+    fig, ax = plt.subplots(figsize=(8, 0.5 * len(cells) + 1.2))
+    for y, (key, g) in enumerate(cells):
+        for ok, colour in ((True, "tab:green"), (False, "tab:red")):
+            x = g.loc[g["success"] == ok, "closings"]
+            ax.scatter(x + 1, np.full(len(x), y) + (0.12 if ok else -0.12), s=12, c=colour, alpha=0.6,
+                       label=("success" if ok else "failure") if y == 0 else None)
+    ax.axvline(DITHER + 1, color="grey", ls="--", lw=1, label=f"{DITHER} closings")
+    ax.set_xscale("log")
+    ax.set_yticks(range(len(cells)), [f"{k[0]}, s{k[1]} {k[2]}, {k[3]}" for k, _ in cells])
+    ax.set_xlabel("gripper closings in the episode + 1")
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", nargs="+", required=True, type=labelled, help="LABEL=<runs>/evaluate/<task> ...")
+    ap.add_argument("--out", required=True, type=Path)
+    ap.add_argument("--command", default=None)
+    ap.add_argument("--wall-seconds", type=float, default=None)
+    args = ap.parse_args(argv)
+    episodes = pd.concat([load_closings(label, path) for label, path in args.runs], ignore_index=True)
+    df = summary(episodes)
+    args.out.mkdir(parents=True, exist_ok=True)
+    episodes.to_csv(args.out / "episodes.csv", index=False)
+    df.to_csv(args.out / "gripper.csv", index=False)
+    figure(episodes, args.out / "gripper.png")
+    studies = [f"- {label}: `{path}`" for label, path in args.runs]
+    header = header_lines(args.runs[0][1], args.command, args.wall_seconds, [], studies, out=args.out)
+    text = ["# Gripper dithering: open-to-closed switches of the gripper command per episode", "", *header,
+            f"An episode *dithers* when its gripper command (the last action dimension) switches from open (<= 0) "
+            f"to closed (> 0) {DITHER} times or more.", "", *markdown(df), "", "![closings per episode](gripper.png)", ""]
+    (args.out / "index.md").write_text("\n".join(text))
+    print("\n".join(text))
+
+
+if __name__ == "__main__":
+    main()
