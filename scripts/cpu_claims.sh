@@ -108,6 +108,6 @@ fi
 EARLIER=()
 [ -f "$OUT/episodes.csv" ] && EARLIER=(--episodes "$OUT/episodes.csv")
 python -m nostra.workflows.claims --evaluations "$EVAL" --out "$OUT" "${note[@]}" "${APART[@]}" "${EARLIER[@]}" \
-  --command "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${STEPS:+ STEPS=$STEPS}${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS}$KNOBS NOISES=\"$NOISES\" CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
+  --command "$(study_settings) NOISES=\"$NOISES\" CHECKPOINTS=\"$CHECKPOINTS\" OUT=$OUT make cpu-claims" \
   --wall-seconds $(( $(date +%s) - start ))
 log "done in $(( ($(date +%s) - start) / 60 )) min: $OUT/claims.md"

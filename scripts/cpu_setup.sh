@@ -16,7 +16,7 @@
 #            are named <task>-h<n>, so that they never mix with, or are kept as, the profile horizon's
 # Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>][-cosine][-gmm]), REPORTS (reports/cpu[...]), EVAL_NAME,
 # RECIPE (the overrides LR and HEAD give the recurrent policies) and KNOBS (LR and HEAD as the command line sets them);
-# defines collection, demo_collections, same_as_best, records and link_configured.
+# defines collection, demo_collections, same_as_best, records, link_configured and study_settings.
 OBS=${OBS:-rgb}
 CAPACITY=${CAPACITY:-configured}
 DEMOS=${DEMOS:-}
@@ -62,6 +62,11 @@ RECIPE="" KNOBS=""   # where the study departs from the paper (Diffusion Policy 
 [ $LR = constant ] || { RECIPE="$RECIPE model.optim.lr_scheduler=$LR"; KNOBS="$KNOBS LR=$LR"; }
 [ $HEAD = gaussian ] || { RECIPE="$RECIPE model.net.head=$HEAD"; KNOBS="$KNOBS HEAD=$HEAD"; }
 RECIPE=${RECIPE# }
+
+# the study's settings as `make cpu` / `make cpu-claims` takes them, for a report's command line
+study_settings() {
+  echo "TASK=$TASK SEEDS=\"$SEEDS\" MODELS=\"$MODELS\" MINUTES=$MINUTES${STEPS:+ STEPS=$STEPS}${DP_MINUTES:+ DP_MINUTES=$DP_MINUTES}${DP_STEPS:+ DP_STEPS=$DP_STEPS}${DP_CHECK_EVERY:+ DP_CHECK_EVERY=$DP_CHECK_EVERY}${HORIZON:+ HORIZON=$HORIZON} OBS=$OBS CAPACITY=$CAPACITY${DEMOS:+ DEMOS=$DEMOS}$KNOBS"
+}
 RUNS=data/runs/cpu$SUFFIX
 REPORTS=reports/cpu$SUFFIX
 
