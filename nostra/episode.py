@@ -12,7 +12,9 @@ An observation source has four methods (the engine imports no simulator; see
   observation ``t`` (None once a recorded episode is over), whether the task is done, and why the
   episode broke off ("" when it did not). The source lets ``schedule.prepare`` set up the noise
   of step ``t`` before that observation is produced;
-* ``close(schedule, t)``: undo what the schedule changed (an episode ending inside a window).
+* ``close(schedule, t)``: undo what the schedule changed (an episode ending inside a window);
+* optionally ``objects() -> {name: (3,) position}``: where the task's objects are, recorded each step
+  beside the end effector (a simulator knows it; a recorded episode does not).
 
 Timeline (the same for both sources): observation t is corrupted when t lies in a window, the
 runner sees the corrupted one, and in oracle mode it imagines the noised modalities there.
@@ -34,11 +36,13 @@ def oracle_keys(schedule, modality_names) -> set[str]:
 
 @dataclass
 class Episode:
-    """What happened: per-step lists (``action``, ``eef_pos`` when observed, ``noise``: step inside a
-    window, ``kl`` and ``imagined``: the runner's info dicts), frames when asked for, and the end."""
+    """What happened: per-step lists (``action``, ``eef_pos`` when observed, ``objects`` when the source
+    knows them, ``noise``: step inside a window, ``kl`` and ``imagined``: the runner's info dicts), frames
+    when asked for, and the end."""
 
     action: list = field(default_factory=list)
     eef_pos: list = field(default_factory=list)
+    objects: list = field(default_factory=list)
     noise: list = field(default_factory=list)
     kl: list = field(default_factory=list)
     imagined: list = field(default_factory=list)
@@ -48,10 +52,13 @@ class Episode:
     reason: str = ""  # why the episode broke off before its end ("" when it did not)
 
     def record(self) -> dict:
-        """Per-step arrays, the rollout records' format: action, eef_pos, noise, kl/<key>, imagined/<key>."""
+        """Per-step arrays, the rollout records' format: action, eef_pos, noise, object/<name> (T, 3),
+        kl/<key>, imagined/<key>."""
         out = {"action": np.asarray(self.action, np.float32).reshape(len(self.action), -1),
                "eef_pos": np.asarray(self.eef_pos, np.float32).reshape(len(self.eef_pos), -1),
                "noise": np.asarray(self.noise, bool)}
+        for name in sorted({k for row in self.objects for k in row}):
+            out[f"object/{name}"] = np.asarray([row[name] for row in self.objects], np.float32)
         for name in ("kl", "imagined"):
             rows = getattr(self, name)
             keys = sorted({k for row in rows for k in row})
@@ -88,6 +95,8 @@ def run(source, runner, schedule, mode: str = "closed", horizon: int | None = No
             ep.action.append(action), ep.noise.append(noisy)
             if EEF_KEY in obs:
                 ep.eef_pos.append(obs[EEF_KEY])
+            if hasattr(source, "objects"):
+                ep.objects.append(source.objects())
             ep.kl.append(info.get("kl", {})), ep.imagined.append(info.get("imagined", {}))
             obs, success, reason = source.step(action, schedule, t + 1, rng)
             ep.steps = t + 1

@@ -219,6 +219,25 @@ def test_sim_rollout_is_the_old_rollout_loop(case):
         assert any(got.record[k].any() for k in got.record if k.startswith("imagined/"))
 
 
+class ObjectsEnv(FakeEnv):
+    """A FakeEnv that says where its one object is: at x = the step count."""
+
+    def object_positions(self):
+        return {"cube": np.array([self.t, 0.0, 0.8])}
+
+
+def test_sim_rollout_records_where_the_objects_were_at_each_observation():
+    from nostra.sim.rollout import EpisodeJob, run_episode
+
+    job = EpisodeJob("Fake", "none", "v", "ckpt", "closed", seed=4, horizon=20, windows=WINDOWS)
+    got = run_episode(ObjectsEnv(succeed_at=13), _runner("nostra"), job)
+    assert got.success and got.steps == 13
+    cube = got.record["object/cube"]
+    assert cube.shape == (13, 3) and cube.dtype == np.float32
+    np.testing.assert_array_equal(cube[:, 0], np.arange(13))  # the position seen with observation t
+    assert "object/cube" not in run_episode(FakeEnv(succeed_at=13), _runner("nostra"), job).record
+
+
 # ---- noise without a simulator ---------------------------------------------------------------
 def test_observation_noises_run_on_recorded_observations():
     obs, _ = _data(0)

@@ -52,6 +52,10 @@ def test_each_task_makes_steps_and_observes(task):
         meta = env.metadata()
         assert set(meta) == META_KEYS and meta["task"] == task and meta["seed"] == 3
         assert set(meta["object_placements"]) == set(get_task(task).objects)
+        now = env.object_positions()  # what rollouts record each step: where reset put them (a nut placed in
+        assert set(now) == set(get_task(task).objects)  # the air drops, so x-y only), the arm far away yet
+        for name, pos in now.items():
+            np.testing.assert_allclose(pos[:2], meta["object_placements"][name][:2], atol=0.02, err_msg=name)
         assert len(meta["camera_pose"]["agentview"]["quat"]) == 4
         with pytest.raises(ValueError, match="action shape"):
             env.step(np.zeros(6))

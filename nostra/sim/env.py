@@ -163,9 +163,13 @@ class SimEnv:
         if self._scale != 1.0:
             self._settle_scaled_objects()
         self.steps = 0
-        self._placements = {name: self.data.xpos[scene.body_id(self.model, body)].round(6).tolist()
-                            for name, body in self.spec.bodies.items()}
+        self._placements = {name: pos.round(6).tolist() for name, pos in self.object_positions().items()}
         return self.observe()
+
+    def object_positions(self) -> dict[str, np.ndarray]:
+        """Where the task's objects are now (world frame), by the task's object names."""
+        return {name: self.data.xpos[scene.body_id(self.model, body)].copy()
+                for name, body in self.spec.bodies.items()}
 
     def step(self, action) -> tuple[dict, float, bool, dict]:
         action = np.asarray(action, dtype=np.float64)

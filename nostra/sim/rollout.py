@@ -82,6 +82,11 @@ class SimSource:
     def close(self, schedule, t: int) -> None:
         schedule.close(self.env, t)
 
+    def objects(self) -> dict:
+        """Where the task's objects are now (recorded each step: a missed grasp or a drop shows); none from
+        an env that does not say."""
+        return self.env.object_positions() if hasattr(self.env, "object_positions") else {}
+
 
 def _unstable(env) -> bool:
     import mujoco

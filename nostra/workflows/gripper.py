@@ -1,7 +1,8 @@
-"""Gripper dithering in evaluation records: how often each episode's gripper command switches from open to
-closed, per cell of one or more studies. A decoder that averages "close" and "open" where the demos do both
-commands ~0 and swings around it; the cube is never carried. Its episodes show tens of switches, a
-successful pick one or two.
+"""Gripper dithering and missed grasps in evaluation records, per cell of one or more studies: how often each
+episode's gripper command switches from open to closed (a policy unsure whether to hold commands ~0 and swings
+around it: tens of switches, where a successful pick shows one or two), and, where the records hold the
+objects' positions (``object/<name>``, written by rollouts since they record them), how far in x-y the gripper
+was from the nearest object when it first closed: a grasp farther than ``MISS`` closes beside the object.
 
     python -m nostra.workflows.gripper --runs "Gaussian head=data/runs/cpu-d1000-cosine/evaluate/stack-h400" \\
         "GMM head=data/runs/cpu-d1000-cosine-gmm/evaluate/stack-h400" --out reports/cpu-d1000-cosine-gmm/gripper
@@ -22,6 +23,8 @@ from nostra.workflows.paired_runs import labelled
 from nostra.workflows.variants import LABELS
 
 DITHER = 10  # open-to-closed switches that make an episode dithering (a success here has at most a few)
+MISS = 0.02  # m: x-y distance from the nearest object at the first close that misses it (Stack's red cube:
+             # 2 cm half-width, so the fingers close beside it)
 CELL = ["study", "seed", "checkpoint", "noise", "variant"]
 
 
@@ -31,8 +34,20 @@ def closings(action: np.ndarray) -> int:
     return int(((grip[1:] > 0) & (grip[:-1] <= 0)).sum())
 
 
+def closing_distance(z) -> float:
+    """x-y distance (m) from the end effector to the nearest object at the first closed gripper command; nan
+    when the record holds no object positions or the gripper never closed."""
+    names = [k for k in z.files if k.startswith("object/")]
+    closed = np.flatnonzero(np.asarray(z["action"])[:, -1] > 0)
+    if not names or not len(closed) or "eef_pos" not in z.files:
+        return float("nan")
+    t = closed[0]
+    return float(min(np.linalg.norm(z[k][t, :2] - z["eef_pos"][t, :2]) for k in names))
+
+
 def load_closings(label: str, evaluations: Path) -> pd.DataFrame:
-    """One row per episode of the study: its cell, episode, success and gripper closings."""
+    """One row per episode of the study: its cell, episode, success, gripper closings and the distance
+    from the nearest object at the first close (nan without object positions, or when it never closed)."""
     rows = []
     for f in sorted(evaluations.glob(RECORDS)):
         variant, episode = f.stem.rsplit("_seed", 1)
@@ -41,13 +56,14 @@ def load_closings(label: str, evaluations: Path) -> pd.DataFrame:
                 raise ValueError(f"{f}: no 'action' array (keys: {', '.join(z.files)}); "
                                  "records written by `nostra evaluate` hold one")
             rows.append((label, *cell_of(f, evaluations), variant, int(episode), bool(z["success"]),
-                         closings(z["action"])))
-    return pd.DataFrame(rows, columns=[*CELL, "episode", "success", "closings"])
+                         closings(z["action"]), any(k.startswith("object/") for k in z.files), closing_distance(z)))
+    return pd.DataFrame(rows, columns=[*CELL, "episode", "success", "closings", "objects", "closing_distance"])
 
 
 def summary(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per cell: episodes, successes, dithering episodes, failures that dither, median closings of a success
-    and of a failure."""
+    and of a failure; where the objects were recorded, failures that closed beside every object and the
+    median distance at the first close (cm) of a success and of a failure."""
     rows = []
     for key, g in episodes.groupby(CELL, sort=False):
         dither, ok = g["closings"] >= DITHER, g["success"]
@@ -55,18 +71,27 @@ def summary(episodes: pd.DataFrame) -> pd.DataFrame:
                      "dithering": int(dither.sum()), "failures": int((~ok).sum()),
                      "failures_dithering": int((dither & ~ok).sum()),
                      "median_closings_success": g.loc[ok, "closings"].median(),
-                     "median_closings_failure": g.loc[~ok, "closings"].median()})
+                     "median_closings_failure": g.loc[~ok, "closings"].median(),
+                     "failures_missing": int((~ok & (g["closing_distance"] >= MISS)).sum())
+                     if g["objects"].all() else None,
+                     "median_cm_success": 100 * g.loc[ok, "closing_distance"].median(),
+                     "median_cm_failure": 100 * g.loc[~ok, "closing_distance"].median()})
     return pd.DataFrame(rows)
 
 
 def markdown(df: pd.DataFrame) -> list[str]:
     lines = ["| Study | Seed | Checkpoint | Noise | Method | success | dithering episodes | failures that dither "
-             "| median closings, successes / failures |", "|---|---|---|---|---|---|---|---|---|"]
+             "| median closings, successes / failures | failures that closed beside every object "
+             "| median cm from the nearest object at the first close, successes / failures |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    pair = lambda a, b, fmt: " / ".join("–" if np.isnan(m) else format(m, fmt) for m in (a, b))  # noqa: E731
     for r in df.itertuples():
-        med = " / ".join("–" if np.isnan(m) else f"{m:g}" for m in (r.median_closings_success,
-                                                                     r.median_closings_failure))
+        missing = "–" if r.failures_missing is None or np.isnan(r.failures_missing) else \
+            f"{int(r.failures_missing)} of {r.failures}"
         lines.append(f"| {r.study} | {r.seed} | {r.checkpoint} | {r.noise} | {LABELS.get(r.variant, r.variant)} | "
-                     f"{r.successes} / {r.episodes} | {r.dithering} | {r.failures_dithering} of {r.failures} | {med} |")
+                     f"{r.successes} / {r.episodes} | {r.dithering} | {r.failures_dithering} of {r.failures} | "
+                     f"{pair(r.median_closings_success, r.median_closings_failure, 'g')} | {missing} | "
+                     f"{pair(r.median_cm_success, r.median_cm_failure, '.1f')} |")
     return lines
 
 
@@ -109,9 +134,12 @@ def main(argv: list[str] | None = None) -> None:
     figure(episodes, args.out / "gripper.png")
     studies = [f"- {label}: `{path}`" for label, path in args.runs]
     header = header_lines(args.runs[0][1], args.command, args.wall_seconds, [], studies, out=args.out)
-    text = ["# Gripper dithering: open-to-closed switches of the gripper command per episode", "", *header,
+    text = ["# Gripper dithering and missed grasps, per episode", "", *header,
             f"An episode *dithers* when its gripper command (the last action dimension) switches from open (<= 0) "
-            f"to closed (> 0) {DITHER} times or more.", "", *markdown(df), "", "![closings per episode](gripper.png)", ""]
+            f"to closed (> 0) {DITHER} times or more. A failure *closed beside every object* when, at its first "
+            f"closed command, the end effector was {100 * MISS:g} cm or more in x-y from the nearest object "
+            "(– where the records hold no object positions).", "", *markdown(df), "",
+            "![closings per episode](gripper.png)", ""]
     (args.out / "index.md").write_text("\n".join(text))
     print("\n".join(text))
 
