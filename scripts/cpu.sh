@@ -20,6 +20,8 @@
 #     STEPS (not the paper's constant rate): runs and reports of its own (data/runs/cpu-d1000-cosine)
 #   HEAD=gmm LR=cosine TASK=stack DEMOS=1000 MODELS=nostra STEPS=18000 MINUTES=200 make cpu   # a 5-mode GMM action
 #     head (robomimic BC-RNN's, not the paper's fixed-variance Gaussian): data/runs/cpu-d1000-cosine-gmm
+#   DEMO_NOISE=0.2 LR=cosine TASK=stack DEMOS=1000 MODELS=nostra STEPS=18000 MINUTES=200 HORIZON=600 make cpu
+#     # demos with action noise 0.2 (the profile's: 0.05), collections and runs of their own (cpu-d1000-n0.2-cosine)
 #   MODELS=diffusion DP_MINUTES=90 DP_STEPS=14000 DP_CHECK_EVERY=2000 make cpu   # Diffusion Policy's own budget:
 #     its cosine spans DP_STEPS (what DP_MINUTES buys here), an in-training check every DP_CHECK_EVERY steps
 set -euo pipefail

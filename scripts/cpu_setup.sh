@@ -5,6 +5,9 @@
 #   DEMOS=<n> demos to train on (default: the profile's demos_per_task, 200); more adds a second collection
 #            of the other n - 200 (episode seeds from 10000: apart from the first demos' and the evaluation's,
 #            1000...) and gives the study its own runs and reports (data/runs/cpu-d<n>, reports/cpu-d<n>)
+#   DEMO_NOISE=<std> (optional) the demos' action noise (generate.action_noise; the profile's: 0.05) for demos of
+#            its own (collections <task>_cpu_n<std>[_plus<n>], '.' written 'p'; the same expert seeds) and a study
+#            of its own (data/runs/cpu[...]-n<std>, reports/cpu[...]-n<std>); the labels stay the expert's (DART)
 #   STEPS=<n> (optional) a whole number of training steps, checked here for the scripts that take one
 #   LR=constant (the paper's Adam at 1e-4; default) | cosine: BC-LSTM's, BC-RSSM's and BC-NOSTRA's rate decays to
 #            0 over STEPS (needed) by a half cosine, not the paper's recipe; the study gets its own runs and reports
@@ -14,8 +17,9 @@
 #            recipe; the study gets its own runs and reports (data/runs/cpu[...]-gmm, reports/cpu[...]-gmm)
 #   HORIZON=<n> (optional) rollout steps instead of the profile's eval_horizon: the cells (and the reports)
 #            are named <task>-h<n>, so that they never mix with, or are kept as, the profile horizon's
-# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>][-cosine][-gmm]), REPORTS (reports/cpu[...]), EVAL_NAME,
-# RECIPE (the overrides LR and HEAD give the recurrent policies) and KNOBS (LR and HEAD as the command line sets them);
+# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>][-n<std>][-cosine][-gmm]), REPORTS (reports/cpu[...]),
+# EVAL_NAME, RECIPE (the overrides LR and HEAD give the recurrent policies) and KNOBS (DEMO_NOISE, LR and HEAD as
+# the command line sets them);
 # defines collection, demo_collections, same_as_best, records, link_configured and study_settings.
 OBS=${OBS:-rgb}
 CAPACITY=${CAPACITY:-configured}
@@ -45,6 +49,12 @@ with initialize_config_dir(CONF_DIR, version_base='1.3'):
     { echo "$0: DEMOS=$DEMOS must be a whole number above the profile's demos_per_task ($BASE_DEMOS)" >&2; exit 2; }
   SUFFIX=$SUFFIX-d$DEMOS
 fi
+DEMO_NOISE=${DEMO_NOISE:-} NOISE_TAG=""
+if [ -n "$DEMO_NOISE" ]; then
+  [[ $DEMO_NOISE =~ ^(0|[1-9][0-9]*)?(\.[0-9]+)?$ ]] && awk "BEGIN { exit !($DEMO_NOISE > 0) }" ||
+    { echo "$0: DEMO_NOISE=$DEMO_NOISE must be a number above 0 (the std of the demos' action noise)" >&2; exit 2; }
+  NOISE_TAG=_n${DEMO_NOISE/./p} SUFFIX=$SUFFIX-n$DEMO_NOISE
+fi
 LR=${LR:-constant}
 case $LR in
   constant) ;;
@@ -58,7 +68,8 @@ case $HEAD in
   gmm) SUFFIX=$SUFFIX-gmm ;;
   *) echo "$0: unknown HEAD=$HEAD; valid: gaussian, gmm" >&2; exit 2 ;;
 esac
-RECIPE="" KNOBS=""   # where the study departs from the paper (Diffusion Policy keeps its own recipe)
+RECIPE="" KNOBS="${DEMO_NOISE:+ DEMO_NOISE=$DEMO_NOISE}"   # where the study departs from the paper (Diffusion
+# Policy keeps its own recipe; the demos are everyone's)
 [ $LR = constant ] || { RECIPE="$RECIPE model.optim.lr_scheduler=$LR"; KNOBS="$KNOBS LR=$LR"; }
 [ $HEAD = gaussian ] || { RECIPE="$RECIPE model.net.head=$HEAD"; KNOBS="$KNOBS HEAD=$HEAD"; }
 RECIPE=${RECIPE# }
@@ -107,12 +118,14 @@ collection() {  # $1 = collection, $2 = task, $3... = generate overrides
 # the task's training collections in the store, made if missing; sets COLLECTIONS (comma-separated) and
 # DEMO_SEEDS (where they came from, for the report)
 demo_collections() {  # $1 = task
-  collection ${1}_cpu $1
-  COLLECTIONS=${1}_cpu DEMO_SEEDS="expert seeds from 0"
+  local base=${1}_cpu$NOISE_TAG noise=(${DEMO_NOISE:+generate.action_noise=$DEMO_NOISE})
+  collection $base $1 "${noise[@]}"
+  COLLECTIONS=$base DEMO_SEEDS="expert seeds from 0"
   if [ -n "$DEMOS" ]; then
     local more=$(( DEMOS - BASE_DEMOS ))
-    collection ${1}_cpu_plus$more $1 generate.episodes=$more generate.seed_offset=10000
-    COLLECTIONS=$COLLECTIONS,${1}_cpu_plus$more
-    DEMO_SEEDS="$DEMOS in all, expert seeds from 0 (${1}_cpu) and from 10000 (${1}_cpu_plus$more)"
+    collection ${base}_plus$more $1 generate.episodes=$more generate.seed_offset=10000 "${noise[@]}"
+    COLLECTIONS=$COLLECTIONS,${base}_plus$more
+    DEMO_SEEDS="$DEMOS in all, expert seeds from 0 ($base) and from 10000 (${base}_plus$more)"
   fi
+  DEMO_SEEDS="$DEMO_SEEDS${DEMO_NOISE:+, action noise $DEMO_NOISE}"
 }

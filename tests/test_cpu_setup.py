@@ -26,6 +26,24 @@ def test_more_demos_add_a_collection_with_seeds_apart_and_a_study_of_their_own()
     assert last == "stack_cpu,stack_cpu_plus800 data/runs/cpu-d1000 reports/cpu-d1000"
 
 
+def test_noisier_demos_are_collections_and_a_study_of_their_own_from_the_same_expert_seeds():
+    env = {"DEMOS": "1000", "DEMO_NOISE": "0.2", "LR": "cosine", "STEPS": "10"}
+    r = setup(env, 'demo_collections stack; echo "$DEMO_SEEDS"; echo "$COLLECTIONS $RUNS $REPORTS"; echo "$KNOBS"')
+    assert r.returncode == 0, r.stderr
+    *made, seeds, last, knobs = r.stdout.splitlines()
+    assert made == ["collection stack_cpu_n0p2 stack generate.action_noise=0.2",
+                    "collection stack_cpu_n0p2_plus800 stack generate.episodes=800 generate.seed_offset=10000 "
+                    "generate.action_noise=0.2"]
+    assert seeds == ("1000 in all, expert seeds from 0 (stack_cpu_n0p2) and from 10000 (stack_cpu_n0p2_plus800), "
+                     "action noise 0.2")
+    assert last == "stack_cpu_n0p2,stack_cpu_n0p2_plus800 data/runs/cpu-d1000-n0.2-cosine reports/cpu-d1000-n0.2-cosine"
+    assert knobs == " DEMO_NOISE=0.2 LR=cosine"
+    for bad in ("0", "0.0", "-0.1", "abc", "."):
+        r = setup({"DEMO_NOISE": bad}, "echo reached")
+        assert r.returncode == 2 and "reached" not in r.stdout, bad
+        assert f"DEMO_NOISE={bad} must be a number above 0" in r.stderr
+
+
 def test_the_profiles_demos_by_default():
     r = setup({"OBS": "rgbd"}, 'demo_collections lift; echo "$COLLECTIONS $RUNS"')
     assert r.returncode == 0, r.stderr
@@ -126,3 +144,14 @@ def test_matched_capacity_with_more_demos_links_the_configured_run_of_those_demo
     r = setup({"CAPACITY": "matched", "DEMOS": "1000", "LR": "cosine", "STEPS": "10"}, body, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert r.stdout.splitlines()[-1] == str(configured)  # from data/runs/cpu-matched-d1000-cosine
+
+
+def test_make_cpu_with_noisier_demos_generates_them_and_trains_on_them(tmp_path):
+    from script_stubs import run_stubbed
+
+    r, calls = run_stubbed(tmp_path, "cpu.sh", {"DEMO_NOISE": "0.1", "MODELS": "nostra"})
+    generate = [c for c in calls if c.startswith("nostra generate")]
+    assert generate == ["nostra generate profile=cpu task=liftd1 generate.collection=liftd1_cpu_n0p1 "
+                        "generate.action_noise=0.1"], (r.stderr, calls)
+    train = next(c for c in calls if c.startswith("nostra train")).split()
+    assert "data.collections=[liftd1_cpu_n0p1]" in train and "paths.runs=data/runs/cpu-n0.1" in train
