@@ -96,24 +96,31 @@ def markdown(df: pd.DataFrame) -> list[str]:
 
 
 def figure(episodes: pd.DataFrame, path: Path) -> None:
-    """Closings per episode, successes and failures apart, one row of points per study and cell."""
+    """Per episode, successes and failures apart, one row of points per study and cell: the closings, and
+    beside them (where the records hold the objects) the distance from the nearest object at the first close."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     cells = list(episodes.groupby(CELL, sort=False))
-    fig, ax = plt.subplots(figsize=(8, 0.5 * len(cells) + 1.2))
-    for y, (key, g) in enumerate(cells):
-        for ok, colour in ((True, "tab:green"), (False, "tab:red")):
-            x = g.loc[g["success"] == ok, "closings"]
-            ax.scatter(x + 1, np.full(len(x), y) + (0.12 if ok else -0.12), s=12, c=colour, alpha=0.6,
-                       label=("success" if ok else "failure") if y == 0 else None)
-    ax.axvline(DITHER + 1, color="grey", ls="--", lw=1, label=f"{DITHER} closings")
-    ax.set_xscale("log")
-    ax.set_yticks(range(len(cells)), [f"{k[0]}, s{k[1]} {k[2]}, {k[3]}" for k, _ in cells])
-    ax.set_xlabel("gripper closings in the episode + 1")
-    ax.legend(loc="lower right", fontsize=8)
+    panels = [("closings", "gripper closings in the episode + 1", DITHER + 1, f"{DITHER} closings")]
+    if episodes["closing_distance"].notna().any():
+        panels.append(("closing_distance", "cm from the nearest object at the first close", 100 * MISS,
+                       f"{100 * MISS:g} cm"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(8 * len(panels), 0.5 * len(cells) + 1.2), squeeze=False)
+    for ax, (column, xlabel, line, line_label) in zip(axes[0], panels):
+        for y, (key, g) in enumerate(cells):
+            for ok, colour in ((True, "tab:green"), (False, "tab:red")):
+                x = g.loc[g["success"] == ok, column]
+                x = x + 1 if column == "closings" else 100 * x
+                ax.scatter(x, np.full(len(x), y) + (0.12 if ok else -0.12), s=12, c=colour, alpha=0.6,
+                           label=("success" if ok else "failure") if y == 0 else None)
+        ax.axvline(line, color="grey", ls="--", lw=1, label=line_label)
+        ax.set_xscale("log" if column == "closings" else "linear")
+        ax.set_yticks(range(len(cells)), [f"{k[0]}, s{k[1]} {k[2]}, {k[3]}" for k, _ in cells])
+        ax.set_xlabel(xlabel)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)  # outside: points stay visible
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -139,7 +146,7 @@ def main(argv: list[str] | None = None) -> None:
             f"to closed (> 0) {DITHER} times or more. A failure *closed beside every object* when, at its first "
             f"closed command, the end effector was {100 * MISS:g} cm or more in x-y from the nearest object "
             "(– where the records hold no object positions).", "", *markdown(df), "",
-            "![closings per episode](gripper.png)", ""]
+            "![closings and closing distances per episode](gripper.png)", ""]
     (args.out / "index.md").write_text("\n".join(text))
     print("\n".join(text))
 
