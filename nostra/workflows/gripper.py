@@ -34,10 +34,15 @@ def closings(action: np.ndarray) -> int:
     return int(((grip[1:] > 0) & (grip[:-1] <= 0)).sum())
 
 
+def object_keys(z) -> list[str]:
+    """A record's object positions (``object/<name>``; rollouts record them since they knew them)."""
+    return [k for k in z.files if k.startswith("object/")]
+
+
 def closing_distance(z) -> float:
     """x-y distance (m) from the end effector to the nearest object at the first closed gripper command; nan
     when the record holds no object positions or the gripper never closed."""
-    names = [k for k in z.files if k.startswith("object/")]
+    names = object_keys(z)
     closed = np.flatnonzero(np.asarray(z["action"])[:, -1] > 0)
     if not names or not len(closed) or "eef_pos" not in z.files:
         return float("nan")
@@ -56,7 +61,7 @@ def load_closings(label: str, evaluations: Path) -> pd.DataFrame:
                 raise ValueError(f"{f}: no 'action' array (keys: {', '.join(z.files)}); "
                                  "records written by `nostra evaluate` hold one")
             rows.append((label, *cell_of(f, evaluations), variant, int(episode), bool(z["success"]),
-                         closings(z["action"]), any(k.startswith("object/") for k in z.files), closing_distance(z)))
+                         closings(z["action"]), bool(object_keys(z)), closing_distance(z)))
     return pd.DataFrame(rows, columns=[*CELL, "episode", "success", "closings", "objects", "closing_distance"])
 
 
@@ -86,8 +91,7 @@ def markdown(df: pd.DataFrame) -> list[str]:
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     pair = lambda a, b, fmt: " / ".join("–" if np.isnan(m) else format(m, fmt) for m in (a, b))  # noqa: E731
     for r in df.itertuples():
-        missing = "–" if r.failures_missing is None or np.isnan(r.failures_missing) else \
-            f"{int(r.failures_missing)} of {r.failures}"
+        missing = "–" if pd.isna(r.failures_missing) else f"{int(r.failures_missing)} of {r.failures}"
         lines.append(f"| {r.study} | {r.seed} | {r.checkpoint} | {r.noise} | {LABELS.get(r.variant, r.variant)} | "
                      f"{r.successes} / {r.episodes} | {r.dithering} | {r.failures_dithering} of {r.failures} | "
                      f"{pair(r.median_closings_success, r.median_closings_failure, 'g')} | {missing} | "
