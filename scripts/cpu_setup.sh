@@ -8,6 +8,9 @@
 #   DEMO_NOISE=<std> (optional) the demos' action noise (generate.action_noise; the profile's: 0.05) for demos of
 #            its own (collections <task>_cpu_n<std>[_plus<n>], '.' written 'p'; the same expert seeds) and a study
 #            of its own (data/runs/cpu[...]-n<std>, reports/cpu[...]-n<std>); the labels stay the expert's (DART)
+#   DEMO_NOISE_PHASES=<phase>[,<phase>...] (optional, with DEMO_NOISE) that noise only while the expert is in these
+#            phases of its script (generate.action_noise_phases; e.g. approach): collections <task>_cpu_n<std>_<phases>,
+#            study cpu[...]-n<std>-<phases> ('-' between phases)
 #   STEPS=<n> (optional) a whole number of training steps, checked here for the scripts that take one
 #   LR=constant (the paper's Adam at 1e-4; default) | cosine: BC-LSTM's, BC-RSSM's and BC-NOSTRA's rate decays to
 #            0 over STEPS (needed) by a half cosine, not the paper's recipe; the study gets its own runs and reports
@@ -17,8 +20,8 @@
 #            recipe; the study gets its own runs and reports (data/runs/cpu[...]-gmm, reports/cpu[...]-gmm)
 #   HORIZON=<n> (optional) rollout steps instead of the profile's eval_horizon: the cells (and the reports)
 #            are named <task>-h<n>, so that they never mix with, or are kept as, the profile horizon's
-# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>][-n<std>][-cosine][-gmm]), REPORTS (reports/cpu[...]),
-# EVAL_NAME, RECIPE (the overrides LR and HEAD give the recurrent policies) and KNOBS (DEMO_NOISE, LR and HEAD as
+# Sets PROFILE, RUNS (data/runs/cpu[-rgbd][-matched][-d<n>][-n<std>[-<phases>]][-cosine][-gmm]), REPORTS (reports/cpu[...]),
+# EVAL_NAME, RECIPE (the overrides LR and HEAD give the recurrent policies) and KNOBS (DEMO_NOISE[_PHASES], LR and HEAD as
 # the command line sets them);
 # defines collection, demo_collections, same_as_best, records, link_configured and study_settings.
 OBS=${OBS:-rgb}
@@ -55,6 +58,16 @@ if [ -n "$DEMO_NOISE" ]; then
     { echo "$0: DEMO_NOISE=$DEMO_NOISE must be a number above 0 (the std of the demos' action noise)" >&2; exit 2; }
   NOISE_TAG=_n${DEMO_NOISE/./p} SUFFIX=$SUFFIX-n$DEMO_NOISE
 fi
+DEMO_NOISE_PHASES=${DEMO_NOISE_PHASES:-}
+if [ -n "$DEMO_NOISE_PHASES" ]; then
+  [ -n "$DEMO_NOISE" ] || { echo "$0: DEMO_NOISE_PHASES=$DEMO_NOISE_PHASES needs DEMO_NOISE=<std> too" >&2; exit 2; }
+  VALID_PHASES=$(python -c "from nostra.sim.experts import PHASES; print(' '.join(PHASES))")
+  for phase in ${DEMO_NOISE_PHASES//,/ }; do
+    [[ " $VALID_PHASES " == *" $phase "* ]] || { echo "$0: DEMO_NOISE_PHASES: unknown phase '$phase'; the \
+experts' phases: $VALID_PHASES" >&2; exit 2; }
+  done
+  NOISE_TAG=${NOISE_TAG}_${DEMO_NOISE_PHASES//,/_} SUFFIX=$SUFFIX-${DEMO_NOISE_PHASES//,/-}
+fi
 LR=${LR:-constant}
 case $LR in
   constant) ;;
@@ -68,8 +81,8 @@ case $HEAD in
   gmm) SUFFIX=$SUFFIX-gmm ;;
   *) echo "$0: unknown HEAD=$HEAD; valid: gaussian, gmm" >&2; exit 2 ;;
 esac
-RECIPE="" KNOBS="${DEMO_NOISE:+ DEMO_NOISE=$DEMO_NOISE}"   # where the study departs from the paper (Diffusion
-# Policy keeps its own recipe; the demos are everyone's)
+# where the study departs from the paper (Diffusion Policy keeps its own recipe; the demos are everyone's)
+RECIPE="" KNOBS="${DEMO_NOISE:+ DEMO_NOISE=$DEMO_NOISE}${DEMO_NOISE_PHASES:+ DEMO_NOISE_PHASES=$DEMO_NOISE_PHASES}"
 [ $LR = constant ] || { RECIPE="$RECIPE model.optim.lr_scheduler=$LR"; KNOBS="$KNOBS LR=$LR"; }
 [ $HEAD = gaussian ] || { RECIPE="$RECIPE model.net.head=$HEAD"; KNOBS="$KNOBS HEAD=$HEAD"; }
 RECIPE=${RECIPE# }
@@ -118,7 +131,8 @@ collection() {  # $1 = collection, $2 = task, $3... = generate overrides
 # the task's training collections in the store, made if missing; sets COLLECTIONS (comma-separated) and
 # DEMO_SEEDS (where they came from, for the report)
 demo_collections() {  # $1 = task
-  local base=${1}_cpu$NOISE_TAG noise=(${DEMO_NOISE:+generate.action_noise=$DEMO_NOISE})
+  local base=${1}_cpu$NOISE_TAG noise=(${DEMO_NOISE:+generate.action_noise=$DEMO_NOISE}
+                                      ${DEMO_NOISE_PHASES:+"generate.action_noise_phases=[$DEMO_NOISE_PHASES]"})
   collection $base $1 "${noise[@]}"
   COLLECTIONS=$base DEMO_SEEDS="expert seeds from 0"
   if [ -n "$DEMOS" ]; then
@@ -127,5 +141,5 @@ demo_collections() {  # $1 = task
     COLLECTIONS=$COLLECTIONS,${base}_plus$more
     DEMO_SEEDS="$DEMOS in all, expert seeds from 0 ($base) and from 10000 (${base}_plus$more)"
   fi
-  DEMO_SEEDS="$DEMO_SEEDS${DEMO_NOISE:+, action noise $DEMO_NOISE}"
+  DEMO_SEEDS="$DEMO_SEEDS${DEMO_NOISE:+, action noise $DEMO_NOISE}${DEMO_NOISE_PHASES:+ (only in $DEMO_NOISE_PHASES)}"
 }

@@ -155,3 +155,23 @@ def test_make_cpu_with_noisier_demos_generates_them_and_trains_on_them(tmp_path)
                         "generate.action_noise=0.1"], (r.stderr, calls)
     train = next(c for c in calls if c.startswith("nostra train")).split()
     assert "data.collections=[liftd1_cpu_n0p1]" in train and "paths.runs=data/runs/cpu-n0.1" in train
+
+
+def test_noise_in_some_phases_only_is_a_collection_and_a_study_of_its_own():
+    env = {"DEMOS": "1000", "DEMO_NOISE": "0.2", "DEMO_NOISE_PHASES": "approach,move", "LR": "cosine", "STEPS": "10"}
+    r = setup(env, 'demo_collections stack; echo "$DEMO_SEEDS"; echo "$COLLECTIONS $RUNS"; echo "$KNOBS"')
+    assert r.returncode == 0, r.stderr
+    *made, seeds, last, knobs = r.stdout.splitlines()
+    assert made == ["collection stack_cpu_n0p2_approach_move stack generate.action_noise=0.2 "
+                    "generate.action_noise_phases=[approach,move]",
+                    "collection stack_cpu_n0p2_approach_move_plus800 stack generate.episodes=800 "
+                    "generate.seed_offset=10000 generate.action_noise=0.2 generate.action_noise_phases=[approach,move]"]
+    assert seeds.endswith("action noise 0.2 (only in approach,move)")
+    assert last == ("stack_cpu_n0p2_approach_move,stack_cpu_n0p2_approach_move_plus800 "
+                    "data/runs/cpu-d1000-n0.2-approach-move-cosine")
+    assert knobs == " DEMO_NOISE=0.2 DEMO_NOISE_PHASES=approach,move LR=cosine"
+    r = setup({"DEMO_NOISE_PHASES": "approach"}, "echo reached")
+    assert r.returncode == 2 and "reached" not in r.stdout and "needs DEMO_NOISE=<std> too" in r.stderr
+    r = setup({"DEMO_NOISE": "0.2", "DEMO_NOISE_PHASES": "approach,hover"}, "echo reached")
+    assert r.returncode == 2 and "reached" not in r.stdout
+    assert "unknown phase 'hover'" in r.stderr and "approach descend grasp" in r.stderr

@@ -3,6 +3,7 @@ reset every rnn_horizon steps at rollout, noise-injected demos (executed vs expe
 blind control, rollouts during training with the best checkpoint, and checkpoint selection."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -102,6 +103,30 @@ def test_noisy_demos_store_the_expert_action_or_the_executed_one():
     env.close()
 
 
+@pytest.mark.sim
+def test_noise_in_some_phases_only_leaves_the_other_phases_executed_as_the_expert_said():
+    from nostra.sim.env import make_env
+    from nostra.sim.experts import make_expert
+    from nostra.sim.generate import run_episode
+
+    env = make_env("Lift", render=False)
+    expert, phases = make_expert(env), []
+    act = expert.act
+    expert.act = lambda obs=None: (act(obs), phases.append(expert.phase))[0]  # the phase of each action
+    run = lambda **kw: run_episode(env, expert, 3, max_steps=60, action_noise=0.2, **kw)  # noqa: E731
+    everywhere = run(record="executed")
+    phases.clear()
+    executed = run(record="executed", noise_phases=("approach",))
+    said = run(record="expert", noise_phases=("approach",))
+    approach = np.array([p == "approach" for p in phases[:len(executed["actions"])]])
+    k = int(approach.sum())
+    assert 0 < k < len(approach) and approach[:k].all()  # the approach, then the descent
+    np.testing.assert_array_equal(executed["actions"][:k], everywhere["actions"][:k])  # the same draws
+    assert not np.allclose(executed["actions"][:k], said["actions"][:k])  # noised there
+    np.testing.assert_array_equal(executed["actions"][k:], said["actions"][k:])  # and nowhere else
+    env.close()
+
+
 def test_checkpoint_selection(tmp_path):
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
@@ -167,3 +192,14 @@ def test_bad_windows_fail_before_any_worker_starts(tmp_path):
     spec.windows = {"Lift": [[5]]}
     with pytest.raises(ValueError, match="task Lift"):
         validate(spec)
+
+
+def test_every_phase_the_scripts_name_is_one_the_noise_can_be_restricted_to():
+    import re
+
+    from nostra.sim import experts
+
+    source = Path(experts.__file__).read_text()
+    named = set(re.findall(r'(?:move|hold)\("(\w+)"', source)) | set(re.findall(r'phase = "(\w+)"', source))
+    assert {"approach", "descend", "grasp", "place", "release"} <= named
+    assert named - {""} == set(experts.PHASES)

@@ -220,6 +220,12 @@ def test_generate_stage_cli(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["task=lift", "generate.variation.object_scale=[1.2,0.8]", f"generate.out={tmp_path / 'bad.hdf5'}"])
     assert "object_scale: low 1.2 > high 0.8" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["task=lift", "generate.action_noise=0.2", "generate.action_noise_phases=[approach,hover]",
+              f"generate.out={tmp_path / 'bad.hdf5'}"])
+    err = capsys.readouterr().err
+    assert "action_noise_phases: unknown phase(s) ['hover']" in err and "approach, descend" in err
+    assert not (tmp_path / "bad.hdf5").exists()
 
 
 @pytest.mark.parametrize("task", ["Lift", "Stack", "PickPlaceCan", "NutAssemblySquare", "Door"])

@@ -22,6 +22,9 @@ from nostra.sim import scene
 # OSC_POSE scales an action of 1 to 5 cm / 0.5 rad (robosuite's BASIC controller config).
 POS_SCALE, ROT_SCALE = 0.05, 0.5
 OPEN, CLOSE = -1.0, 1.0
+# Every phase a script names (generate.action_noise_phases picks from these); "done": after the script.
+PHASES = ("approach", "descend", "grasp", "lift", "regrasp", "move", "place", "release", "retreat", "rotate",
+          "insert", "orient", "reach", "turn", "pull", "settle", "done")
 # Gripper pointing straight down; its fingers close along the world y axis (local x) at yaw 0.
 R_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 

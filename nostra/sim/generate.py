@@ -11,7 +11,8 @@ Layout written (robomimic's, plus the episode metadata of the contract as demo a
     mask/train, mask/valid   demo names (byte strings)
 
 Noise-injected demonstrations (``action_noise`` > 0): Gaussian noise is added to the action the
-robot executes (clipped to [-1, 1]), so demos visit states slightly off the expert's path;
+robot executes (clipped to [-1, 1]), so demos visit states slightly off the expert's path
+(``action_noise_phases``: only while the expert's script is in one of those phases, e.g. ``[approach]``);
 ``record="executed"`` stores the noisy executed action (MimicGen), ``record="expert"`` the expert's
 clean action at those states, i.e. its correction (DART). Episodes whose expert fails are dropped
 and counted. The file is written under a temporary name
@@ -40,7 +41,7 @@ from tqdm import tqdm
 from nostra.data.episode import Episode
 from nostra.data.formats import robomimic_hdf5
 from nostra.sim.env import make_env, robomimic_env_args, robosuite_kwargs
-from nostra.sim.experts import make_expert
+from nostra.sim.experts import PHASES, make_expert
 from nostra.sim.tasks import get_task
 from nostra.sim.variations import Variation, sample_variation
 
@@ -64,6 +65,7 @@ class GenerateConfig:
     variation: Mapping = field(default_factory=dict)  # ranges, see variations.RANGE_KEYS
     action_noise: float = 0.0  # std of the Gaussian noise on the executed action
     record: str = "executed"  # which action the demo stores: executed | expert
+    action_noise_phases: list[str] = field(default_factory=list)  # the expert's phases noised; empty: every step
 
     def __post_init__(self):
         get_task(self.task)  # unknown task -> ValueError listing the valid ones
@@ -76,14 +78,20 @@ class GenerateConfig:
             raise ValueError(f"generate.record={self.record!r} unknown; valid: {', '.join(RECORDS)}")
         if not self.action_noise >= 0:
             raise ValueError(f"generate.action_noise must be >= 0, got {self.action_noise}")
+        unknown = [p for p in self.action_noise_phases if p not in PHASES]
+        if unknown:
+            raise ValueError(f"generate.action_noise_phases: unknown phase(s) {unknown}; the experts' phases: "
+                             f"{', '.join(PHASES)}")
 
 
 # ---- one episode -------------------------------------------------------------------------------
 
 def run_episode(env, expert, seed: int, variation: Variation | None = None, max_steps: int | None = None,
-                steps_after_success: int = 10, action_noise: float = 0.0, record: str = "executed") -> dict:
+                steps_after_success: int = 10, action_noise: float = 0.0, record: str = "executed",
+                noise_phases: tuple[str, ...] = ()) -> dict:
     """Roll the expert out; stop `steps_after_success` steps after the task first succeeds.
-    With `action_noise`, the executed action is perturbed (seeded by the episode's seed)."""
+    With `action_noise`, the executed action is perturbed (seeded by the episode's seed), with
+    `noise_phases` only while the expert is in one of them (the draws stay those of every step)."""
     obs = env.reset(seed=seed, variation=variation)
     expert.reset()
     rng = np.random.default_rng([seed, 11])
@@ -95,7 +103,9 @@ def run_episode(env, expert, seed: int, variation: Variation | None = None, max_
         action = np.asarray(expert.act(obs), dtype=np.float64)
         executed = action
         if action_noise > 0:
-            executed = np.clip(action + rng.normal(0.0, action_noise, action.shape), -1.0, 1.0)
+            noise = rng.normal(0.0, action_noise, action.shape)
+            if not noise_phases or expert.phase in noise_phases:
+                executed = np.clip(action + noise, -1.0, 1.0)
         obs, reward, done, info = env.step(executed)
         frames.append(obs)
         actions.append(executed if record == "executed" else action)
@@ -140,7 +150,7 @@ def _episode_job(job: tuple[int, dict]) -> dict:
     seed, variation = job
     cfg = _WORKER["cfg"]
     return run_episode(_WORKER["env"], _WORKER["expert"], seed, Variation.from_dict(variation), cfg.max_steps,
-                       cfg.steps_after_success, cfg.action_noise, cfg.record)
+                       cfg.steps_after_success, cfg.action_noise, cfg.record, tuple(cfg.action_noise_phases))
 
 
 def _jobs(cfg: GenerateConfig) -> Iterator[tuple[int, dict]]:
