@@ -40,7 +40,7 @@ EVAL=$RUNS/evaluate/$EVAL_NAME   # <task>, or <task>-h<n> at a HORIZON of its ow
 start=$(date +%s)
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 
-TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES STEPS=$STEPS HORIZON=$HORIZON OBS=$OBS CAPACITY=$CAPACITY DEMOS=$DEMOS DEMO_NOISE=$DEMO_NOISE LR=$LR HEAD=$HEAD CPU_OUT=$CPU_OUT bash scripts/cpu.sh
+TASK=$TASK SEEDS="$SEEDS" MODELS="$MODELS" MINUTES=$MINUTES STEPS=$STEPS HORIZON=$HORIZON OBS=$OBS CAPACITY=$CAPACITY DEMOS=$DEMOS DEMO_NOISE=$DEMO_NOISE DEMO_NOISE_PHASES=$DEMO_NOISE_PHASES LR=$LR HEAD=$HEAD CPU_OUT=$CPU_OUT bash scripts/cpu.sh
 
 # the variants each noise needs: under none an imagining variant is its closed-loop policy (nothing to
 # imagine), under clean_windows the closed-loop ones see clean frames (= none); blind keeps the

@@ -1,5 +1,6 @@
 """Run a scripts/*.sh study against stand-in `nostra` and `python` commands that log their arguments
-(calls.log) and print LiftD1 for the task-name lookup: what the script would run, without running it."""
+(calls.log) and print LiftD1 for the task-name lookup (and three phases for the experts' phase list): what the
+script would run, without running it."""
 import os
 import shutil
 import subprocess
@@ -8,7 +9,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 STUB = """#!/usr/bin/env bash
 echo "$(basename "$0") $*" >> "$(dirname "$0")/../../calls.log"
-case "$*" in *get_task*) echo LiftD1 ;; esac
+case "$*" in *get_task*) echo LiftD1 ;; *PHASES*) echo approach descend grasp ;; esac
 """
 
 

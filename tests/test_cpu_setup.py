@@ -175,3 +175,15 @@ def test_noise_in_some_phases_only_is_a_collection_and_a_study_of_its_own():
     r = setup({"DEMO_NOISE": "0.2", "DEMO_NOISE_PHASES": "approach,hover"}, "echo reached")
     assert r.returncode == 2 and "reached" not in r.stdout
     assert "unknown phase 'hover'" in r.stderr and "approach descend grasp" in r.stderr
+
+
+def test_make_cpu_with_noise_in_the_approach_only_generates_with_those_phases(tmp_path):
+    from script_stubs import run_stubbed
+
+    r, calls = run_stubbed(tmp_path, "cpu.sh", {"DEMO_NOISE": "0.2", "DEMO_NOISE_PHASES": "approach",
+                                                "MODELS": "nostra"})
+    generate = [c for c in calls if c.startswith("nostra generate")]
+    assert generate == ["nostra generate profile=cpu task=liftd1 generate.collection=liftd1_cpu_n0p2_approach "
+                        "generate.action_noise=0.2 generate.action_noise_phases=[approach]"], (r.stderr, calls)
+    train = next(c for c in calls if c.startswith("nostra train")).split()
+    assert "paths.runs=data/runs/cpu-n0.2-approach" in train
