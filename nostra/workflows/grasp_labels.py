@@ -20,12 +20,12 @@ import numpy as np
 import pandas as pd
 
 from nostra.data import Store
+from nostra.modality import EEF_POS as EEF
 from nostra.workflows.command_log import command_header
 from nostra.workflows.cpu_report import machine
 
 NEAR_XY = 0.02  # m: half the width of Stack's red cube, the x-y distance at which a close misses it
 NEAR_Z = 0.01   # m: the height band of the grasp (a descent covers it in a few steps)
-EEF = "robot0_eef_pos"
 
 
 def grasp_labels(grip: np.ndarray, pos: np.ndarray) -> tuple[int, float] | None:
