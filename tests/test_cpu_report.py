@@ -69,6 +69,11 @@ def test_cpu_report_best_is_the_runs_own_pick_at_its_horizon(tmp_path):
         {"step": 3000, "episodes": 10, "horizon": 400, "score": 0.7, "seconds": 60}]))
     lines, curves, _ = cpu_report.training_rows(tmp_path / "runs", "Stack", [0], ["nostra"])
     assert lines[-1].endswith("| 2 | 3000 (70%, 10) |")
+    # resumed across sittings: the wall is the fit's over every sitting (train_seconds), not this process's
+    info = json.loads((run / "run.json").read_text())
+    (run / "run.json").write_text(json.dumps({**info, "train_seconds": 7200, "resumed": True}))
+    lines, _, _ = cpu_report.training_rows(tmp_path / "runs", "Stack", [0], ["nostra"])
+    assert "| 3000 | 120.0, resumed | 2.0 (2%) | 2 |" in lines[-1]
     cpu_report.curve_figure(curves, tmp_path / "curve.png")
     assert (tmp_path / "curve.png").stat().st_size > 0
 

@@ -56,9 +56,15 @@ def test_pretrain_tracks_checkpoints_and_resumes(store, tmp_path):
     assert held_out_episodes(out) == split_episodes(store, ["target"], 0.1, 0)[1] != []
     assert held_out_episodes(out, ["library"]) == []
     assert run_episodes(out, ["target"], "train") == split_episodes(store, ["target"], 0.1, 0)[0] != []
-    # a re-run with more steps continues from last.ckpt instead of starting over
+    assert result["resumed"] is False and 0 < result["train_seconds"]
+    # a re-run with more steps continues from last.ckpt instead of starting over, and counts the time its
+    # earlier sittings spent (the Timer's state in last.ckpt: set to a day here so that it cannot be missed)
+    last = torch.load(out / "checkpoints/last.ckpt", map_location="cpu", weights_only=False)
+    last["callbacks"]["Timer"]["time_elapsed"]["train"] = 86400.0
+    torch.save(last, out / "checkpoints/last.ckpt")
     again = train(spec(store, out, run_name="pre", max_steps=9))
-    assert again["steps"] == 9
+    assert again["steps"] == 9 and again["resumed"] is True
+    assert 86400 < again["train_seconds"] < 86400 + again["wall_seconds"]
 
 
 def test_held_out_episodes_of_a_run_without_a_split(tmp_path):

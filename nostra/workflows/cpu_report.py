@@ -117,14 +117,16 @@ def training_rows(runs: Path, task_name: str, seeds: list[int], models: list[str
 def trained_row(run: Path, seed: int, m: str) -> dict:
     info = json.loads((run / "run.json").read_text())
     checks = json.loads((run / "rollouts.json").read_text()) if (run / "rollouts.json").is_file() else []
-    wall = info.get("wall_seconds") or float("nan")
+    # train_seconds: the fit's time over every sitting (Lightning's Timer); runs written before it: this process's
+    wall = info.get("train_seconds") or info.get("wall_seconds") or float("nan")
+    resumed = ", resumed" if info.get("resumed") else ""
     spent = sum(c.get("seconds", 0) for c in checks)
     # the run's own pick (run.json): among the checks at its last horizon, as best.ckpt was chosen
     best = (info.get("rollouts") or {}).get("best") or max(checks, key=lambda c: (c["score"], c["step"]),
                                                            default=None)
     best_s = f"{best['step']} ({100 * best['score']:.0f}%, {best['episodes']})" if best else "–"
     demos = (f"{info['train_episodes']} + {info['val_episodes']}" if "train_episodes" in info else "–")
-    return {"row": f"| {seed} | {LABELS.get(m, m)} | {demos} | {info['steps']} | {wall / 60:.1f} | "
+    return {"row": f"| {seed} | {LABELS.get(m, m)} | {demos} | {info['steps']} | {wall / 60:.1f}{resumed} | "
                    f"{spent / 60:.1f} ({100 * spent / wall:.0f}%) | {len(checks)} | {best_s} |", "checks": checks}
 
 

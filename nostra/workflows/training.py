@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import lightning as L
-from lightning.pytorch.callbacks import ModelCheckpoint
+from lightning.pytorch.callbacks import ModelCheckpoint, Timer
 
 from nostra.configs import ModelConfig, TrainConfig, from_dict, model_config
 from nostra.workflows import ddp
@@ -210,6 +210,8 @@ def train(spec: TrainSpec) -> dict:
     replicas = ddp.ReplicaCheck()  # under DDP: ranks draw different windows and end with the same weights
     callbacks.append(replicas)
     max_time = {"minutes": t.max_minutes} if t.max_minutes else None
+    if max_time is None:  # Lightning adds its own Timer for max_time; either one keeps the time across resumes
+        callbacks.append(Timer(verbose=False))
     logger = TrackingLogger()
     kwargs = dict(max_steps=t.max_steps, max_time=max_time, logger=logger, callbacks=callbacks,
                   enable_progress_bar=t.progress, enable_model_summary=False,
@@ -243,7 +245,8 @@ def train(spec: TrainSpec) -> dict:
             summary = tracker.finish(status)
     result = {"checkpoint": str(final), "run_id": tracker.run_id, "tracking": summary, "manifest_hash": manifest_hash,
               "steps": int(trainer.global_step), "train_episodes": len(train_eps), "val_episodes": len(val_eps),
-              "wall_seconds": round(time.time() - start, 1)}
+              "wall_seconds": round(time.time() - start, 1), "resumed": resume is not None,
+              "train_seconds": round(_train_seconds(trainer), 1)}
     if replicas.report:
         result["ddp"] = replicas.report
     if rollouts is not None:
@@ -253,3 +256,10 @@ def train(spec: TrainSpec) -> dict:
         (out / "run.json").write_text(json.dumps(result, indent=2))
         print(summary)
     return result
+
+
+def _train_seconds(trainer) -> float:
+    """The fit's time over every sitting: the Timer's state travels in last.ckpt, so a resumed run counts the
+    time its earlier sittings spent up to that checkpoint (wall_seconds counts this process only)."""
+    timer = next(c for c in trainer.callbacks if isinstance(c, Timer))
+    return timer.time_elapsed("train")
