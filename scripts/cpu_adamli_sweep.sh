@@ -13,6 +13,10 @@
 #   OBS=rgbd NOISE=proprio_zero ROLLOUT_NOISES="none proprio_zero" F_O=20 F_C="3 6 12" bash scripts/cpu_adamli_sweep.sh
 # WARMUP=0 runs the settings with AdaMLI's warm-up changed (its own settings, -w0, beside the others).
 # OUT=<folder> writes the report there instead of $REPORTS/<task>/adamli_sweep (e.g. one per training seed).
+# CHECKPOINT=last sweeps the last checkpoint instead of the best (its analyses and rollouts apart: <task>-adamli-last);
+# the study's knobs (DEMOS, DEMO_NOISE[_PHASES], LR, HEAD, HORIZON: scripts/cpu_setup.sh) pick its runs, demos and horizon:
+#   TASK=stack DEMOS=1000 DEMO_NOISE=0.2 DEMO_NOISE_PHASES=approach LR=cosine STEPS=18000 HORIZON=600 CHECKPOINT=last \
+#     F_O=20 F_C=12 ROLLOUT_NOISES="none mask" OUT=<folder> bash scripts/cpu_adamli_sweep.sh
 # Where make cpu-claims has evaluated the same best checkpoint, each setting's rollouts are also paired with
 # its cells (the paper's AdaMLI, the oracle MLI and BC-LSTM under the same noise, the clean closed loop).
 set -euo pipefail
@@ -26,9 +30,13 @@ NOISE=${NOISE:-mask}
 ROLLOUT_NOISES=${ROLLOUT_NOISES-none mask}
 EPISODES=${EPISODES:-50}
 WARMUP=${WARMUP:-}   # AdaMLI's warm-up in steps (empty: AdaMLIConfig's 10); a setting's name then ends -w<steps>
-source scripts/cpu_setup.sh   # OBS -> PROFILE, RUNS, REPORTS
-ROOT=$RUNS/offline/$TASK-adamli
-ROLLOUTS=$RUNS/evaluate/$TASK-adamli
+CHECKPOINT=${CHECKPOINT:-best}
+case $CHECKPOINT in best) CK="" ;; last) CK=-last ;;
+  *) echo "$0: unknown CHECKPOINT=$CHECKPOINT; valid: best, last" >&2; exit 2 ;; esac
+HORIZON=${HORIZON:-}
+source scripts/cpu_setup.sh   # OBS and the study's knobs -> PROFILE, RUNS, REPORTS, EVAL_NAME, NOISE_TAG
+ROOT=$RUNS/offline/$TASK-adamli$CK
+ROLLOUTS=$RUNS/evaluate/$EVAL_NAME-adamli$CK
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
 WINDOWS=$(python -c "import yaml; print(yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows'])" | tr -d ' ')
 drop=$(for v in lstm diffusion rssm rssm_li nostra nostra_mli; do printf 'evaluate.variants.%s=null ' $v; done)
@@ -39,8 +47,8 @@ for fo in $F_O; do
     if [ -f "$out/offline/offline.json" ]; then echo "f_o=$fo f_c=$fc: done before, kept"; else
       echo "[$(date +%H:%M:%S)] offline seed $SEED $NOISE f_o=$fo f_c=$fc"
       nostra evaluate profile=$PROFILE task=$TASK paths.runs=$RUNS seed=$SEED evaluate.rollouts=false \
-        evaluate.offline.checkpoint=$RUNS/train/pretrain-nostra-$NAME-s$SEED/checkpoints/best.ckpt \
-        "evaluate.offline.collections=[${TASK}_cpu]" evaluate.offline.noise=$NOISE evaluate.offline.episodes=20 \
+        evaluate.offline.checkpoint=$RUNS/train/pretrain-nostra-$NAME-s$SEED/checkpoints/$CHECKPOINT.ckpt \
+        "evaluate.offline.collections=[${TASK}_cpu$NOISE_TAG]" evaluate.offline.noise=$NOISE evaluate.offline.episodes=20 \
         "evaluate.offline.windows=$WINDOWS" "evaluate.offline.adamli=$ada" \
         evaluate.offline.setting=good_view evaluate.out_dir=$out
     fi
@@ -48,15 +56,16 @@ for fo in $F_O; do
       out=$ROLLOUTS/$setting/$noise
       [ -f "$out/success.csv" ] && { echo "rollouts f_o=$fo f_c=$fc $noise: done before, kept"; continue; }
       echo "[$(date +%H:%M:%S)] rollouts seed $SEED $noise f_o=$fo f_c=$fc ($EPISODES episodes)"
-      nostra evaluate profile=$PROFILE task=$TASK paths.runs=$RUNS seed=$SEED evaluate.checkpoint=best \
+      nostra evaluate profile=$PROFILE task=$TASK paths.runs=$RUNS seed=$SEED evaluate.checkpoint=$CHECKPOINT \
+        ${HORIZON:+profile.eval_horizon=$HORIZON} \
         "evaluate.noises=[$noise]" evaluate.episodes=$EPISODES $drop \
         "evaluate.variants.nostra_adamli.adamli=$ada" evaluate.offline.enabled=false evaluate.out_dir=$out
     done
   done
 done
 OUT=${OUT:-$REPORTS/$TASK/adamli_sweep}
-CLAIMS=$RUNS/evaluate/$TASK/s$SEED/best
+CLAIMS=$RUNS/evaluate/$EVAL_NAME/s$SEED/$CHECKPOINT
 reference=(); [ -d "$CLAIMS" ] && reference=(--reference "$CLAIMS")
 python -m nostra.workflows.offline_report --analyses "$ROOT" --out "$OUT" --no-figures \
   --rollouts "$ROLLOUTS" "${reference[@]}" \
-  --command "OBS=$OBS TASK=$TASK SEED=$SEED F_O=\"$F_O\" F_C=\"$F_C\" NOISE=$NOISE ROLLOUT_NOISES=\"$ROLLOUT_NOISES\" EPISODES=$EPISODES${WARMUP:+ WARMUP=$WARMUP} OUT=$OUT bash scripts/cpu_adamli_sweep.sh"
+  --command "OBS=$OBS TASK=$TASK SEED=$SEED${DEMOS:+ DEMOS=$DEMOS}$KNOBS${STEPS:+ STEPS=$STEPS}${HORIZON:+ HORIZON=$HORIZON} CHECKPOINT=$CHECKPOINT F_O=\"$F_O\" F_C=\"$F_C\" NOISE=$NOISE ROLLOUT_NOISES=\"$ROLLOUT_NOISES\" EPISODES=$EPISODES${WARMUP:+ WARMUP=$WARMUP} OUT=$OUT bash scripts/cpu_adamli_sweep.sh"
