@@ -38,7 +38,10 @@ source scripts/cpu_setup.sh   # OBS and the study's knobs -> PROFILE, RUNS, REPO
 ROOT=$RUNS/offline/$TASK-adamli$CK
 ROLLOUTS=$RUNS/evaluate/$EVAL_NAME-adamli$CK
 NAME=$(python -c "from nostra.sim.tasks import get_task; print(get_task('$TASK').name)")
-WINDOWS=$(python -c "import yaml; print(yaml.safe_load(open('conf/task/$TASK.yaml'))['noise_windows'])" | tr -d ' ')
+# the rollouts' windows (pipeline.evaluate.noise_windows): the task config's, else the registry's (the paper's)
+WINDOWS=$(python -c "import yaml; from nostra.sim.tasks import get_task
+w = yaml.safe_load(open('conf/task/$TASK.yaml')).get('noise_windows') or [list(w) for w in get_task('$TASK').noise_windows]
+print(w)" | tr -d ' ')
 drop=$(for v in lstm diffusion rssm rssm_li nostra nostra_mli; do printf 'evaluate.variants.%s=null ' $v; done)
 for fo in $F_O; do
   for fc in $F_C; do
