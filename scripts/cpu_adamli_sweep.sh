@@ -17,7 +17,7 @@
 # the study's knobs (DEMOS, DEMO_NOISE[_PHASES], LR, HEAD, HORIZON: scripts/cpu_setup.sh) pick its runs, demos and horizon:
 #   TASK=stack DEMOS=1000 DEMO_NOISE=0.2 DEMO_NOISE_PHASES=approach LR=cosine STEPS=18000 HORIZON=600 CHECKPOINT=last \
 #     F_O=20 F_C=12 ROLLOUT_NOISES="none mask" OUT=<folder> bash scripts/cpu_adamli_sweep.sh
-# Where make cpu-claims has evaluated the same best checkpoint, each setting's rollouts are also paired with
+# Where make cpu-claims has evaluated the same checkpoint, each setting's rollouts are also paired with
 # its cells (the paper's AdaMLI, the oracle MLI and BC-LSTM under the same noise, the clean closed loop).
 set -euo pipefail
 cd "$(dirname "$0")/.."
