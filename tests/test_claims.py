@@ -379,3 +379,14 @@ def test_table2_diffusion_rows_are_paired_and_gated_by_its_bars(tmp_path):
     assert "| Diffusion Policy clean >= 85% (50%) | no |" in lines
     assert "above Diffusion Policy under rgb with McNemar p < 0.05 (+100 points, p = 0.002) | not testable (shown" in lines
     assert "| BC-NOSTRA + AdaMLI above BC-LSTM under rgb with McNemar p < 0.05 (+100 points, p = 0.002) | shown |" in lines
+
+
+def test_header_names_the_variants_whose_last_cells_copy_the_best(tmp_path):
+    from nostra.workflows.claims import main
+
+    _scenario(tmp_path / "ev", mli_mask=[True] * 10, lstm_mask=[False] * 10)
+    _write(tmp_path / "ev", 0, "last", "none", "nostra", [True] * 10)  # run on its own last checkpoint
+    _write(tmp_path / "ev", 0, "last", "none", "lstm", [True] * 10, folder="same-as-best")
+    main(["--evaluations", str(tmp_path / "ev"), "--out", str(tmp_path / "out")])
+    line = next(l for l in (tmp_path / "out/claims.md").read_text().splitlines() if l.startswith("- Last checkpoint"))
+    assert line.endswith("`s0/last/none/same-as-best` (lstm)")

@@ -446,6 +446,11 @@ def header_lines(evaluations: Path, command: str | None, wall_seconds: float | N
             *extra, *[f"- {n}" for n in notes], ""]
 
 
+def copied_variants(folder: Path) -> str:
+    """The variants whose records a same-as-best folder holds (records/<task>/<noise>/<variant>_seed<n>.npz)."""
+    return ", ".join(sorted({p.name.rsplit("_seed", 1)[0] for p in folder.glob("records/*/*/*_seed*.npz")}))
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--evaluations", required=True, type=Path, help="<runs>/evaluate/<task>")
@@ -460,8 +465,9 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     copied = [c for c in sorted(p.relative_to(args.evaluations) for p in args.evaluations.glob("s*/last/*/same-as-best"))
               if args.seeds is None or int(c.parts[0][1:]) in args.seeds]
-    extra = ["- Last checkpoint = best checkpoint (the final check was the best): those cells are the best "
-             f"cells' records, copied, not re-run: {', '.join(f'`{c}`' for c in copied)}"] if copied else []
+    extra = ["- Last checkpoint = best checkpoint for the variants named (their final check was the best): those "
+             "cells are the best cells' records, copied, not re-run: "
+             + ", ".join(f"`{c}` ({copied_variants(args.evaluations / c)})" for c in copied)] if copied else []
     if args.episodes:
         extra.append(f"- Episodes read from earlier reports too: {', '.join(f'`{p}`' for p in args.episodes)}")
     if args.seeds is not None:
