@@ -105,7 +105,7 @@ for seed in $SEEDS; do
     best=$RUNS/evaluate/$EVAL_NAME/s$seed/best/$noise
     if [ $ck = last ] && [ ! -e "$cell" ] && [ -f "$best/success.csv" ] && all_same_as_best $seed; then
       mkdir -p "$(dirname "$cell")" && cp -r "$best" "$cell"
-      echo "Every model's last checkpoint is its best (the final check was the best): a copy of best/$noise." \
+      echo "The last checkpoint of every model trained here ($MODELS) is its best (the final check was the best): a copy of best/$noise." \
         > "$cell/SAME_AS_BEST.txt"
       log "evaluate seed $seed last $noise: the same checkpoints as best, its records copied"; ran=1; continue
     fi

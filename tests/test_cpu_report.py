@@ -44,9 +44,16 @@ def test_cpu_report(tmp_path):
 
     (runs / "evaluate/liftd1/s0/last/none").mkdir(parents=True)  # scripts/cpu.sh's copy when last = best
     (runs / "evaluate/liftd1/s0/last/none/SAME_AS_BEST.txt").write_text("a copy")
+    (runs / "evaluate/liftd1/s0/last/none/records/LiftD1/none").mkdir(parents=True)
+    (runs / "evaluate/liftd1/s0/last/none/records/LiftD1/none/lstm_seed1000.npz").write_bytes(b"")
+    (runs / "evaluate/liftd1/s0/last/none/rssm/records/LiftD1/none").mkdir(parents=True)  # a later model's own run
+    (runs / "evaluate/liftd1/s0/last/none/rssm/records/LiftD1/none/rssm_seed1000.npz").write_bytes(b"")
+    (runs / "evaluate/liftd1/s1/last/none").mkdir(parents=True)  # a seed this report does not cover
+    (runs / "evaluate/liftd1/s1/last/none/SAME_AS_BEST.txt").write_text("a copy")
     cpu_report.main(["--task", "liftd1", "--runs", str(runs), "--out", str(out), "--demos", "seeds from 0 and 10000"])
     text = (out / "index.md").read_text()
-    assert "`s0/last/none` copies the best cell, not a second run" in text and "demos: seeds from 0 and 10000;" in text
+    assert "copies of the best cells, not a second run: `s0/last/none` (lstm)\n" in text
+    assert "s1/last" not in text and "demos: seeds from 0 and 10000;" in text
     # rewritten without --command (by hand): the log's one command stays the header's, nothing added
     assert "- Command: `TASK=liftd1 make cpu`" in text and "Commands, in the order" not in text
 

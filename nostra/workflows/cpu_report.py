@@ -21,6 +21,7 @@ from pathlib import Path
 import pandas as pd
 
 from nostra.sim.tasks import get_task
+from nostra.workflows.claims import copied_variants
 from nostra.workflows.command_log import command_header
 from nostra.workflows.variants import LABELS
 
@@ -282,8 +283,8 @@ def main(argv: list[str] | None = None) -> None:
     commands = command_header(out, args.command, args.wall_seconds)
     if not any(c.startswith("- Wall time") for c in commands):
         commands.append("- Wall time of the command: see the training table")
-    copies = sorted(str(p.parent.relative_to(runs / "evaluate" / folder))
-                    for p in (runs / "evaluate" / folder).glob("s*/last/*/SAME_AS_BEST.txt"))
+    copies = sorted(p.parent for seed in args.seeds
+                    for p in (runs / "evaluate" / folder).glob(f"s{seed}/last/*/SAME_AS_BEST.txt"))
     kept = bool(len(df) and df["kept"].any()) or any(line.endswith(f"{KEPT} |") for line in train_lines)
     text = [f"# CPU profile: {task}", "",
             *commands, f"- Machine: {machine()}" + (f" (this disk's runs; rows marked {KEPT} ran where their "
@@ -293,9 +294,10 @@ def main(argv: list[str] | None = None) -> None:
             *([f"- Rollout horizon: {args.horizon} steps, set for these cells (`HORIZON`; evaluations in "
                f"`{runs / 'evaluate' / folder}`); the best checkpoint is the one the training's own checks picked"]
               if args.horizon else []),
-            *([f"- Last = best checkpoint for every model{' run on this disk' if kept else ''} (the final check "
-               "was the best): "
-               f"{', '.join(f'`{c}`' for c in copies)} copies the best cell, not a second run"] if copies else []),
+            *(["- Last = best checkpoint (the final check was the best), so these last cells are copies of the best "
+               "cells, not a second run: " + ", ".join(
+                   f"`{c.relative_to(runs / 'evaluate' / folder)}` ({copied_variants(c)})" for c in copies)]
+              if copies else []),
             "", "## Success", "",
             f"Success rate in % over {episodes} episodes per cell, 95% Wilson interval in brackets. "
             "*best*: the checkpoint with the best in-training rollout success (the peak, as the paper and "
