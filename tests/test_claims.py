@@ -390,3 +390,20 @@ def test_header_names_the_variants_whose_last_cells_copy_the_best(tmp_path):
     main(["--evaluations", str(tmp_path / "ev"), "--out", str(tmp_path / "out")])
     line = next(l for l in (tmp_path / "out/claims.md").read_text().splitlines() if l.startswith("- Last checkpoint"))
     assert line.endswith("`s0/last/none/same-as-best` (lstm)")
+
+
+def test_an_evaluated_last_cell_wins_over_its_same_as_best_copy(tmp_path):
+    """Best and last one EMA update apart (Diffusion Policy): both evaluated, the last's own records count, and
+    the header does not call them copies."""
+    from nostra.workflows.claims import load_records, main
+
+    _scenario(tmp_path / "ev", mli_mask=[True] * 10, lstm_mask=[False] * 10)
+    _write(tmp_path / "ev", 0, "last", "none", "lstm", [False] * 10, folder="lstm")           # evaluated
+    _write(tmp_path / "ev", 0, "last", "none", "lstm", [True] * 10, folder="same-as-best")    # copied from best
+    _write(tmp_path / "ev", 0, "last", "none", "nostra", [True] * 10, folder="same-as-best")  # copied only
+    df = load_records(tmp_path / "ev").set_index(["seed", "checkpoint", "noise", "variant"]).sort_index()
+    assert not df.loc[(0, "last", "none", "lstm"), "success"].any()
+    assert df.loc[(0, "last", "none", "nostra"), "success"].all()
+    main(["--evaluations", str(tmp_path / "ev"), "--out", str(tmp_path / "out")])
+    line = next(l for l in (tmp_path / "out/claims.md").read_text().splitlines() if l.startswith("- Last checkpoint"))
+    assert line.endswith("`s0/last/none/same-as-best` (nostra)")

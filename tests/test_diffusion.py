@@ -187,3 +187,24 @@ def test_training_windows_cover_the_prediction_horizon():
     assert window_length(SimpleNamespace(seq_len=10, model=DiffusionConfig())) == 16
     assert window_length(SimpleNamespace(seq_len=20, model=DiffusionConfig())) == 20
     assert window_length(SimpleNamespace(seq_len=10, model=LSTMConfig())) == 10
+
+
+def test_a_callback_at_the_batch_end_sees_the_ema_of_that_step():
+    """In-training checks and step checkpoints run in callbacks' on_train_batch_end, which Lightning calls before
+    the module's: the EMA must already hold the step's update there (it lagged one step when updated in the hook)."""
+    import lightning as L
+
+    class Seen(L.Callback):
+        def __init__(self):
+            self.pairs = []
+
+        def on_train_batch_end(self, trainer, pl_module, *args):
+            self.pairs.append((trainer.global_step, int(pl_module.ema_net.n_averaged)))
+
+    torch.manual_seed(0)
+    obs, actions = circle_task()
+    module = DiffusionPolicy(MODS, 2, net=TINY, optim={"lr": 1e-3, "warmup_steps": 2})
+    module.set_normalization(fit_stats({"pos": obs["pos"].numpy(), "actions": actions.numpy()}))
+    seen = Seen()
+    fit(module, DataLoader([{"obs": obs, "actions": actions}] * 3, batch_size=None), 3, callbacks=[seen])
+    assert seen.pairs == [(1, 1), (2, 2), (3, 3)]

@@ -147,7 +147,10 @@ class DiffusionPolicy(PolicyModule):
         super().set_normalization(stats)
         self.ema_net.module.normalizer.set_stats(stats)
 
-    def on_train_batch_end(self, outputs, batch, batch_idx) -> None:
+    def optimizer_step(self, *args, **kwargs) -> None:
+        # the EMA follows every optimiser step at once, so that a callback at the batch's end (a checkpoint, an
+        # in-training check) sees the weights of that step; Lightning calls callbacks' on_train_batch_end first
+        super().optimizer_step(*args, **kwargs)
         self.ema_net.update_parameters(self.net)
         for e, b in zip(self.ema_net.module.buffers(), self.net.buffers()):  # buffers are copied, not averaged
             e.copy_(b)

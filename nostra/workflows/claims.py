@@ -43,6 +43,7 @@ PAIRS = [("nostra_mli", "nostra", TABLE1_NOISES[1:]), ("nostra_mli", "lstm", TAB
 CLEAN_MIN, BLIND_MAX, WITHIN = 0.85, 0.20, 0.10  # the issue's bars: clean >= 85%, blind <= 20%, within 10 points
 POOLED = "pooled"
 RECORDS = "s*/*/**/records/*/*/*_seed*.npz"  # <evaluations>/s<seed>/<checkpoint>/.../<task>/<noise>/<variant>_seed<n>.npz
+COPIED = "same-as-best"  # the folder of a last cell's records copied from its best cell (scripts/cpu_claims.sh)
 
 
 def cell_of(f: Path, evaluations: Path) -> tuple[int, str, str]:
@@ -59,7 +60,9 @@ def load_records(evaluations: Path) -> pd.DataFrame:
     """One row per episode: seed (training), checkpoint, noise, variant, episode, success, and for
     clean episodes the share of steps on which any modality was imagined."""
     rows = {}
-    for f in sorted(evaluations.glob(RECORDS)):
+    # a same-as-best copy stands in for a last cell not evaluated; where the last checkpoint was evaluated too
+    # (its weights one EMA update past best's, say), its own records win: read after the copies
+    for f in sorted(evaluations.glob(RECORDS), key=lambda f: (COPIED not in f.parts, f)):
         variant, episode = f.stem.rsplit("_seed", 1)
         with np.load(f) as z:
             imagined = [z[k] for k in z.files if k.startswith("imagined/")]
@@ -446,9 +449,16 @@ def header_lines(evaluations: Path, command: str | None, wall_seconds: float | N
             *extra, *[f"- {n}" for n in notes], ""]
 
 
-def copied_variants(folder: Path) -> str:
-    """The variants whose records a same-as-best folder holds (records/<task>/<noise>/<variant>_seed<n>.npz)."""
-    return ", ".join(sorted({p.name.rsplit("_seed", 1)[0] for p in folder.glob("records/*/*/*_seed*.npz")}))
+def copied_variants(folder: Path, cell: Path | None = None) -> str:
+    """The variants whose records a folder of copies holds (records/<task>/<noise>/<variant>_seed<n>.npz) that its
+    cell (default: the folder's parent) holds no evaluated records of elsewhere (those win over copies)."""
+    def variants(files) -> set[str]:
+        return {p.name.rsplit("_seed", 1)[0] for p in files}
+
+    pattern, cell = "records/*/*/*_seed*.npz", cell or folder.parent
+    copies = [folder / "records"] + ([cell / "records"] if (cell / "SAME_AS_BEST.txt").exists() else [])  # make cpu's
+    evaluated = [p for p in cell.glob(f"**/{pattern}") if not any(p.is_relative_to(c) for c in copies)]
+    return ", ".join(sorted(variants(folder.glob(pattern)) - variants(evaluated)))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -463,8 +473,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=None,
                     help="only these training seeds (default: every s<seed> folder and earlier episode)")
     args = ap.parse_args(argv)
-    copied = [c for c in sorted(p.relative_to(args.evaluations) for p in args.evaluations.glob("s*/last/*/same-as-best"))
-              if args.seeds is None or int(c.parts[0][1:]) in args.seeds]
+    copied = [c for c in sorted(p.relative_to(args.evaluations) for p in args.evaluations.glob(f"s*/last/*/{COPIED}"))
+              if (args.seeds is None or int(c.parts[0][1:]) in args.seeds) and copied_variants(args.evaluations / c)]
     extra = ["- Last checkpoint = best checkpoint for the variants named (their final check was the best): those "
              "cells are the best cells' records, copied, not re-run: "
              + ", ".join(f"`{c}` ({copied_variants(args.evaluations / c)})" for c in copied)] if copied else []

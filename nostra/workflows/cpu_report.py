@@ -296,7 +296,7 @@ def main(argv: list[str] | None = None) -> None:
               if args.horizon else []),
             *(["- Last = best checkpoint (the final check was the best), so these last cells are copies of the best "
                "cells, not a second run: " + ", ".join(
-                   f"`{c.relative_to(runs / 'evaluate' / folder)}` ({copied_variants(c)})" for c in copies)]
+                   f"`{c.relative_to(runs / 'evaluate' / folder)}` ({copied_variants(c, c)})" for c in copies)]
               if copies else []),
             "", "## Success", "",
             f"Success rate in % over {episodes} episodes per cell, 95% Wilson interval in brackets. "
