@@ -73,6 +73,7 @@ reuse_best() {  # $1 = seed, $2 = noise, $3... = variants: copy each variant's b
   local seed=$1 noise=$2 v src dst; shift 2
   for v in "$@"; do
     same_as_best "$(model_of "$v")" "$seed" || continue
+    records "$EVAL/s$seed/last/$noise" $noise $v > /dev/null && continue  # evaluated there already: no copy
     src=$(records "$EVAL/s$seed/best/$noise" $noise $v) || continue
     dst=$EVAL/s$seed/last/$noise/same-as-best/records/$NAME/$noise
     mkdir -p "$dst" && cp $src "$dst/" && log "seed $seed last $noise $v: same checkpoint as best, records copied"
