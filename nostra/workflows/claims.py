@@ -60,8 +60,8 @@ def load_records(evaluations: Path) -> pd.DataFrame:
     """One row per episode: seed (training), checkpoint, noise, variant, episode, success, and for
     clean episodes the share of steps on which any modality was imagined."""
     rows = {}
-    # a same-as-best copy stands in for a last cell not evaluated; where the last checkpoint was evaluated too
-    # (its weights one EMA update past best's, say), its own records win: read after the copies
+    # a same-as-best copy stands in for a last cell not evaluated; where the last checkpoint was evaluated
+    # itself, its own records win: read after the copies
     for f in sorted(evaluations.glob(RECORDS), key=lambda f: (COPIED not in f.parts, f)):
         variant, episode = f.stem.rsplit("_seed", 1)
         with np.load(f) as z:

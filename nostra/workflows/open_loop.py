@@ -97,7 +97,7 @@ def markdown(df: pd.DataFrame, spread: np.ndarray) -> list[str]:
         lo, hi = r.arm_mae_ci
         lines.append(f"| {r.label} | {r.checkpoint} | {r.step} | {r.arm_mae:.3f} [{lo:.3f}, {hi:.3f}] | "
                      f"{100 * r.gripper_agreement:.1f}% | " + " | ".join(f"{getattr(r, c):.3f}" for c in chans) + " |")
-    lines.append("| *demo spread (std of the action)* | | | " f"{spread[:-1].mean():.3f} | | "
+    lines.append(f"| *demo spread (std of the action)* | | | {spread[:-1].mean():.3f} | | "
                  + " | ".join(f"{s:.3f}" for s in spread) + " |")
     return lines
 
