@@ -13,11 +13,15 @@ case "$*" in *get_task*) echo LiftD1 ;; *PHASES*) echo approach descend grasp ;;
 """
 
 
-def run_stubbed(tmp_path: Path, script: str, env: dict) -> tuple[subprocess.CompletedProcess, list[str]]:
-    """Run scripts/<script> (with cpu_setup.sh beside it) in ``tmp_path``: its result and the logged calls."""
+def run_stubbed(tmp_path: Path, script: str, env: dict, scripts: dict | None = None
+                ) -> tuple[subprocess.CompletedProcess, list[str]]:
+    """Run scripts/<script> (with cpu_setup.sh beside it) in ``tmp_path``: its result and the logged calls.
+    ``scripts``: other scripts/<name> it calls, as stand-in text."""
     (tmp_path / "scripts").mkdir()
     for name in (script, "cpu_setup.sh"):
         shutil.copy(ROOT / "scripts" / name, tmp_path / "scripts" / name)
+    for name, text in (scripts or {}).items():
+        (tmp_path / "scripts" / name).write_text(text)
     bin_dir = tmp_path / ".venv/bin"
     bin_dir.mkdir(parents=True)
     for name in ("nostra", "python"):
